@@ -1,0 +1,23 @@
+#pragma once
+// Subcommand registry: each app/cmd_*.cpp registers itself, so adding a command touches no other file.
+#include <functional>
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+namespace crfcal::app {
+
+// setup() declares the subcommand's options on `command` and returns the function that runs it (exit code).
+using CommandSetup = std::function<std::function<int()>(CLI::App& command)>;
+
+struct CommandRegistration {
+  CommandRegistration(int order, std::string name, std::string description, CommandSetup setup);
+};
+
+// Exit codes shared by all commands.
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitError = 1;      // bad input or a failed computation (one line on stderr)
+inline constexpr int kExitUsage = 2;      // command-line syntax (CLI11's own)
+inline constexpr int kExitTolerance = 3;  // a --tolerance check failed (compare)
+
+}  // namespace crfcal::app

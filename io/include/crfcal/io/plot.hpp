@@ -1,0 +1,40 @@
+#pragma once
+// Line plots rendered with OpenCV's drawing functions (curve plots, Γ profiles, benchmark figures).
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+namespace crfcal::io {
+
+struct PlotSeries {
+  std::vector<double> x;
+  std::vector<double> y;
+  cv::Scalar color{200, 80, 0};  // BGR
+  std::string label;
+  int thickness = 2;
+  bool markers = false;  // draw points instead of a polyline
+  bool dashed = false;
+};
+
+struct PlotOptions {
+  std::string title;
+  std::string x_label = "x";
+  std::string y_label = "y";
+  double x_min = std::numeric_limits<double>::quiet_NaN();  // NaN: from the data
+  double x_max = std::numeric_limits<double>::quiet_NaN();
+  double y_min = std::numeric_limits<double>::quiet_NaN();
+  double y_max = std::numeric_limits<double>::quiet_NaN();
+  cv::Size size{720, 540};
+};
+
+// A distinct colour for series i (a small qualitative palette).
+cv::Scalar seriesColor(int i);
+
+cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& options);
+void writePlot(const std::filesystem::path& path, const std::vector<PlotSeries>& series, const PlotOptions& options);
+
+}  // namespace crfcal::io

@@ -1,0 +1,25 @@
+#pragma once
+// Response curves on disk and in JSON.
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json_fwd.hpp>
+
+#include "crfcal/response_model.hpp"
+
+namespace crfcal::io {
+
+// Like crfcal::parseResponseSpec, plus "table:FILE": FILE holds φ samples at x = i/(n−1), one per line, or two
+// columns x,φ (resampled to 1024 points), or a crfcal JSON report/truth file ("inverse_crf": samples, or per
+// channel {"G": …} — the green channel, or `channel`).
+ResponseModel parseResponseSpec(const std::string& spec, const std::string& channel = "G");
+
+// Reads an inverse curve table (as described above) resampled to `samples` points.
+std::vector<double> readCurveTable(const std::filesystem::path& path, const std::string& channel = "G",
+                                   int samples = kCurveSamples);
+
+// {"kind": "ggcm", "parameters": [...], "spec": "ggcm:..."} (tables: kind and sample count only).
+nlohmann::json modelToJson(const ResponseModel& model);
+
+}  // namespace crfcal::io

@@ -1,0 +1,115 @@
+#include "crfcal/io/plot.hpp"
+
+#include <algorithm>
+#include <cstdio>
+
+#include <opencv2/imgproc.hpp>
+
+#include "crfcal/io/image_io.hpp"
+
+namespace crfcal::io {
+
+cv::Scalar seriesColor(int i) {
+  static const cv::Scalar palette[] = {{180, 119, 31}, {14, 127, 255}, {44, 160, 44},  {40, 39, 214},
+                                       {189, 103, 148}, {75, 86, 140}, {194, 119, 227}, {127, 127, 127},
+                                       {34, 189, 188},  {207, 190, 23}};
+  return palette[static_cast<size_t>(i) % std::size(palette)];
+}
+
+namespace {
+
+std::string tickLabel(double v) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.3g", v);
+  return buffer;
+}
+
+double niceStep(double range) {
+  const double raw = range / 5;
+  const double magnitude = std::pow(10.0, std::floor(std::log10(raw)));
+  for (double m : {1.0, 2.0, 2.5, 5.0, 10.0})
+    if (m * magnitude >= raw) return m * magnitude;
+  return 10 * magnitude;
+}
+
+}  // namespace
+
+cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& options) {
+  double x0 = options.x_min, x1 = options.x_max, y0 = options.y_min, y1 = options.y_max;
+  auto extend = [](double& lo, double& hi, const std::vector<double>& values, bool fixed_lo, bool fixed_hi) {
+    for (double v : values) {
+      if (!std::isfinite(v)) continue;
+      if (!fixed_lo) lo = std::isnan(lo) ? v : std::min(lo, v);
+      if (!fixed_hi) hi = std::isnan(hi) ? v : std::max(hi, v);
+    }
+  };
+  const bool fx0 = !std::isnan(x0), fx1 = !std::isnan(x1), fy0 = !std::isnan(y0), fy1 = !std::isnan(y1);
+  for (const auto& s : series) {
+    extend(x0, x1, s.x, fx0, fx1);
+    extend(y0, y1, s.y, fy0, fy1);
+  }
+  if (std::isnan(x0) || std::isnan(x1)) x0 = 0, x1 = 1;
+  if (std::isnan(y0) || std::isnan(y1)) y0 = 0, y1 = 1;
+  if (x1 <= x0) x1 = x0 + 1;
+  if (y1 <= y0) y1 = y0 + 1;
+  if (!fy0 || !fy1) {  // breathing room
+    const double pad = 0.05 * (y1 - y0);
+    if (!fy0) y0 -= pad;
+    if (!fy1) y1 += pad;
+  }
+
+  cv::Mat canvas(options.size, CV_8UC3, cv::Scalar(255, 255, 255));
+  const int left = 80, right = 20, top = options.title.empty() ? 20 : 45, bottom = 60;
+  const cv::Rect area(left, top, canvas.cols - left - right, canvas.rows - top - bottom);
+  auto px = [&](double x) { return area.x + (x - x0) / (x1 - x0) * area.width; };
+  auto py = [&](double y) { return area.y + area.height - (y - y0) / (y1 - y0) * area.height; };
+  const int font = cv::FONT_HERSHEY_SIMPLEX;
+  const cv::Scalar black(0, 0, 0), grid(225, 225, 225);
+
+  for (double step = niceStep(x1 - x0), t = std::ceil(x0 / step) * step; t <= x1 + 1e-9 * step; t += step) {
+    const int x = static_cast<int>(std::lround(px(t)));
+    cv::line(canvas, {x, area.y}, {x, area.y + area.height}, grid, 1);
+    cv::putText(canvas, tickLabel(t), {x - 15, area.y + area.height + 20}, font, 0.45, black, 1, cv::LINE_AA);
+  }
+  for (double step = niceStep(y1 - y0), t = std::ceil(y0 / step) * step; t <= y1 + 1e-9 * step; t += step) {
+    const int y = static_cast<int>(std::lround(py(t)));
+    cv::line(canvas, {area.x, y}, {area.x + area.width, y}, grid, 1);
+    cv::putText(canvas, tickLabel(t), {8, y + 5}, font, 0.45, black, 1, cv::LINE_AA);
+  }
+  cv::rectangle(canvas, area, black, 1);
+  cv::putText(canvas, options.x_label, {area.x + area.width / 2 - 30, canvas.rows - 15}, font, 0.55, black, 1, cv::LINE_AA);
+  cv::putText(canvas, options.y_label, {8, top - 8}, font, 0.5, black, 1, cv::LINE_AA);
+  if (!options.title.empty()) cv::putText(canvas, options.title, {left, 28}, font, 0.65, black, 1, cv::LINE_AA);
+
+  cv::Mat plot = canvas(area);
+  const cv::Point offset(area.x, area.y);
+  for (const auto& s : series) {
+    std::vector<cv::Point> points;
+    for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
+      if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i])) continue;
+      points.emplace_back(static_cast<int>(std::lround(px(s.x[i]))) - offset.x,
+                          static_cast<int>(std::lround(py(s.y[i]))) - offset.y);
+    }
+    if (s.markers) {
+      for (const auto& p : points) cv::circle(plot, p, s.thickness + 1, s.color, cv::FILLED, cv::LINE_AA);
+    } else if (s.dashed) {
+      for (size_t i = 0; i + 1 < points.size(); i += 2) cv::line(plot, points[i], points[i + 1], s.color, s.thickness, cv::LINE_AA);
+    } else if (points.size() > 1) {
+      cv::polylines(plot, points, false, s.color, s.thickness, cv::LINE_AA);
+    }
+  }
+  int legend_y = area.y + 20;
+  for (const auto& s : series) {
+    if (s.label.empty()) continue;
+    cv::line(canvas, {area.x + 12, legend_y - 5}, {area.x + 40, legend_y - 5}, s.color, 3, cv::LINE_AA);
+    cv::putText(canvas, s.label, {area.x + 48, legend_y}, font, 0.45, black, 1, cv::LINE_AA);
+    legend_y += 20;
+  }
+  return canvas;
+}
+
+void writePlot(const std::filesystem::path& path, const std::vector<PlotSeries>& series, const PlotOptions& options) {
+  writeImage(path, renderPlot(series, options));
+}
+
+}  // namespace crfcal::io

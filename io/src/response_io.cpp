@@ -1,0 +1,125 @@
+#include "crfcal/io/response_io.hpp"
+
+#include <algorithm>
+#include <fstream>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "crfcal/error.hpp"
+
+namespace crfcal::io {
+namespace fs = std::filesystem;
+
+namespace {
+
+std::vector<double> resample(const std::vector<double>& x, const std::vector<double>& y, int samples) {
+  std::vector<double> out(static_cast<size_t>(samples));
+  for (int i = 0; i < samples; ++i) {
+    const double t = double(i) / (samples - 1);
+    auto it = std::lower_bound(x.begin(), x.end(), t);
+    if (it == x.begin()) out[static_cast<size_t>(i)] = y.front();
+    else if (it == x.end()) out[static_cast<size_t>(i)] = y.back();
+    else {
+      const size_t j = static_cast<size_t>(it - x.begin());
+      const double w = (t - x[j - 1]) / std::max(1e-300, x[j] - x[j - 1]);
+      out[static_cast<size_t>(i)] = y[j - 1] + w * (y[j] - y[j - 1]);
+    }
+  }
+  return out;
+}
+
+std::vector<double> evenSamples(const std::vector<double>& y, int samples) {
+  std::vector<double> x(y.size());
+  for (size_t i = 0; i < y.size(); ++i) x[i] = double(i) / double(y.size() - 1);
+  return resample(x, y, samples);
+}
+
+}  // namespace
+
+std::vector<double> readCurveTable(const fs::path& path, const std::string& channel, int samples) {
+  std::ifstream in(path);
+  if (!in) throw Error(fs::exists(path) ? "cannot open" : "file not found", path.string());
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  const std::string text = buffer.str();
+  const auto first = text.find_first_not_of(" \t\r\n");
+  if (first != std::string::npos && text[first] == '{') {
+    nlohmann::json json;
+    try {
+      json = nlohmann::json::parse(text);
+    } catch (const nlohmann::json::exception& e) {
+      throw Error(std::string("invalid JSON: ") + e.what(), path.string());
+    }
+    if (!json.contains("inverse_crf")) throw Error("JSON has no \"inverse_crf\"", path.string());
+    auto curve = json["inverse_crf"];
+    if (curve.is_object()) {
+      if (!curve.contains(channel)) throw Error("\"inverse_crf\" has no channel " + channel, path.string());
+      curve = curve[channel];
+    }
+    if (!curve.is_array() || curve.size() < 2) throw Error("\"inverse_crf\" is not a list of samples", path.string());
+    return evenSamples(curve.get<std::vector<double>>(), samples);
+  }
+  std::vector<double> xs, ys;
+  std::istringstream lines(text);
+  std::string line;
+  int number = 0, columns = -1;
+  while (std::getline(lines, line)) {
+    ++number;
+    if (const auto hash = line.find('#'); hash != std::string::npos) line.erase(hash);
+    std::replace(line.begin(), line.end(), ',', ' ');
+    std::istringstream fields(line);
+    std::vector<double> row;
+    std::string token;
+    bool numeric = true;
+    while (fields >> token) {
+      char* end = nullptr;
+      const double v = std::strtod(token.c_str(), &end);
+      if (end == token.c_str() || *end) numeric = false;
+      row.push_back(v);
+    }
+    if (row.empty() || (!numeric && xs.empty() && ys.empty())) continue;  // blank line or a header
+    if (!numeric) throw Error("line " + std::to_string(number) + " is not numeric", path.string());
+    if (columns < 0) columns = static_cast<int>(row.size());
+    if (static_cast<int>(row.size()) != columns || columns > 2)
+      throw Error("line " + std::to_string(number) + ": expected 1 (phi) or 2 (x,phi) columns", path.string());
+    if (columns == 2) xs.push_back(row[0]);
+    ys.push_back(row.back());
+  }
+  if (ys.size() < 2) throw Error("a curve table needs at least 2 samples", path.string());
+  if (columns == 2) {
+    for (size_t i = 1; i < xs.size(); ++i)
+      if (xs[i] <= xs[i - 1]) throw Error("x column must increase", path.string());
+    return resample(xs, ys, samples);
+  }
+  return evenSamples(ys, samples);
+}
+
+ResponseModel parseResponseSpec(const std::string& spec, const std::string& channel) {
+  if (spec.rfind("table:", 0) == 0) {
+    const fs::path path = spec.substr(6);
+    TableModel table{readCurveTable(path, channel)};
+    if (auto validity = checkValidity(table, kCurveSamples, 1e-4); !validity)
+      throw Error("not a valid inverse response: " + validity.reason, path.string());
+    return table;
+  }
+  return crfcal::parseResponseSpec(spec);
+}
+
+nlohmann::json modelToJson(const ResponseModel& model) {
+  nlohmann::json json;
+  json["kind"] = modelKind(model);
+  std::visit(
+      [&](const auto& m) {
+        using T = std::decay_t<decltype(m)>;
+        if constexpr (std::is_same_v<T, GammaModel>) json["parameters"] = {m.gamma};
+        if constexpr (std::is_same_v<T, GgcmModel>) json["parameters"] = m.alpha;
+        if constexpr (std::is_same_v<T, EmorModel>) json["parameters"] = m.coefficients;
+        if constexpr (std::is_same_v<T, TableModel>) json["samples"] = m.samples.size();
+      },
+      model);
+  if (!std::holds_alternative<TableModel>(model)) json["spec"] = describe(model);
+  return json;
+}
+
+}  // namespace crfcal::io

@@ -1,0 +1,52 @@
+#include "test_support.hpp"
+
+#include <array>
+#include <cstdio>
+#include <cstdlib>
+#include <random>
+
+#include <sys/wait.h>
+
+#include "crfcal/io/image_io.hpp"
+#include "crfcal/io/kernel_io.hpp"
+
+namespace crfcal::test {
+namespace fs = std::filesystem;
+
+fs::path samples() { return CRFCAL_SAMPLES; }
+fs::path crfcalBinary() { return CRFCAL_BINARY; }
+
+fs::path sharedData() {
+  if (const char* env = std::getenv("CRFCAL_SHARED_DATA"); env && *env) return fs::is_directory(env) ? env : "";
+  const fs::path candidate = fs::path(CRFCAL_SAMPLES).parent_path().parent_path() / "shared" / "data";
+  return fs::is_directory(candidate) ? candidate : fs::path();
+}
+
+cv::Mat levinImage(int index) { return io::readGrayUnit(samples() / "levin09" / ("im" + std::to_string(index) + ".png")); }
+
+cv::Mat levinKernel(int index) { return io::kernelFromSpec("levin:" + std::to_string(index)); }
+
+TempDir::TempDir() {
+  std::random_device device;
+  path_ = fs::temp_directory_path() / ("crfcal-test-" + std::to_string(device()));
+  fs::create_directories(path_);
+}
+
+TempDir::~TempDir() {
+  std::error_code ec;
+  fs::remove_all(path_, ec);
+}
+
+CommandResult run(const std::string& command_line) {
+  CommandResult result;
+  FILE* pipe = ::popen((command_line + " 2>&1").c_str(), "r");
+  if (!pipe) return result;
+  std::array<char, 4096> buffer{};
+  size_t n = 0;
+  while ((n = std::fread(buffer.data(), 1, buffer.size(), pipe)) > 0) result.output.append(buffer.data(), n);
+  const int status = ::pclose(pipe);
+  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return result;
+}
+
+}  // namespace crfcal::test

@@ -1,0 +1,35 @@
+#pragma once
+// Helpers shared by the tests: bundled samples, the crfcal binary, temporary directories.
+#include <filesystem>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace crfcal::test {
+
+std::filesystem::path samples();            // the project's samples/ directory
+std::filesystem::path crfcalBinary();       // the built crfcal command
+std::filesystem::path sharedData();         // ../shared/data (or $CRFCAL_SHARED_DATA); empty if absent
+cv::Mat levinImage(int index);              // samples/levin09/im<index>.png as CV_64F in [0,1]
+cv::Mat levinKernel(int index);             // samples/levin09/kernel0<index>.txt, normalised
+
+// A fresh temporary directory removed when the object dies.
+class TempDir {
+ public:
+  TempDir();
+  ~TempDir();
+  const std::filesystem::path& path() const { return path_; }
+  std::filesystem::path operator/(const std::string& name) const { return path_ / name; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// Runs a shell command; returns its exit status and captures stdout+stderr.
+struct CommandResult {
+  int exit_code = -1;
+  std::string output;
+};
+CommandResult run(const std::string& command_line);
+
+}  // namespace crfcal::test
