@@ -15,7 +15,9 @@ fs::path sibling(const fs::path& path, const std::string& tag) {
   fs::path name = path.filename();
   if (name.empty()) name = path.parent_path().filename();
   const fs::path parent = path.has_parent_path() ? path.parent_path() : fs::path(".");
-  return parent / ("." + name.string() + "." + tag + "-" + std::to_string(::getpid()));
+  std::string hidden(".");  // built by appending: GCC 12 warns falsely (-Wrestrict) on chained operator+
+  hidden.append(name.string()).append(".").append(tag).append("-").append(std::to_string(::getpid()));
+  return parent / hidden;
 }
 }  // namespace
 

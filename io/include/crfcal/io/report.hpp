@@ -1,0 +1,52 @@
+#pragma once
+// The calibration report (report.json) shared by `calibrate`, `chart`, `compare` and `export`.
+//
+// Layout (keys not listed are free-form additions of the producing command, kept in `extra`):
+// {
+//   "crfcal_version": "0.1.0", "command": "calibrate" | "chart" | ...,
+//   "inverse_crf": {"R": [1024 samples of φ at x = i/1023], "G": [...], "B": [...]}   (only "G" for grey input),
+//   "models": {"G": {"kind": "ggcm", "parameters": [...], "spec": "ggcm:..."}, ...},
+//   "exposure_ratio": {"exif": r or null, "fitted": r or null},
+//   "kernel": {"size": [w, h], "file": "kernel.png"} (optional),
+//   "pixels_used": {"G": n, ...}, "timings": {"stage": seconds, ...},
+//   "effects": [ {"name", "detected", "statistic", "gain", ...} ], "warnings": ["..."],
+//   "covered_range": {"G": [x_lo, x_hi]}   (intensity range actually supported by data; optional)
+// }
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "crfcal/response_model.hpp"
+
+namespace crfcal::io {
+
+struct CalibrationReport {
+  std::string command;
+  std::map<std::string, std::vector<double>> inverse_crf;   // channel → 1024 samples
+  std::map<std::string, ResponseModel> models;              // channel → model (optional per channel)
+  std::map<std::string, std::pair<double, double>> covered_range;
+  std::optional<double> ratio_exif;
+  std::optional<double> ratio_fitted;
+  std::map<std::string, double> timings;
+  std::map<std::string, long long> pixels_used;
+  nlohmann::json effects = nlohmann::json::array();
+  std::vector<std::string> warnings;
+  nlohmann::json extra = nlohmann::json::object();  // command-specific fields, merged at top level
+
+  // Channels present, in R, G, B order.
+  std::vector<std::string> channels() const;
+  nlohmann::json toJson() const;
+  static CalibrationReport fromJson(const nlohmann::json& json, const std::string& source = {});
+};
+
+// Reads report.json (or a simulate truth.json, whose "inverse_crf" is a plain list: channel "G").
+// Throws crfcal::Error naming the file.
+CalibrationReport readReport(const std::filesystem::path& path);
+// Writes atomically, pretty-printed.
+void writeReport(const std::filesystem::path& path, const CalibrationReport& report);
+
+}  // namespace crfcal::io
