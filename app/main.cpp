@@ -51,6 +51,10 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   app.get_formatter()->column_width(40);
   app.option_defaults()->always_capture_default();
+  // One line per error, like every other crfcal error.
+  app.failure_message([](const CLI::App*, const CLI::Error& e) {
+    return std::string("crfcal: error: ") + e.what() + " (see --help)\n";
+  });
 
   auto entries = registry();
   std::sort(entries.begin(), entries.end(), [](const auto& a, const auto& b) { return a.order < b.order; });

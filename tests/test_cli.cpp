@@ -1,0 +1,134 @@
+// The crfcal command line: --help/--version, simulate round trip, one-line errors and no partial output.
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "crfcal/blur_model.hpp"
+#include "crfcal/io/image_io.hpp"
+#include "crfcal/io/kernel_io.hpp"
+#include "crfcal/response_curve.hpp"
+#include "crfcal/response_model.hpp"
+#include "test_support.hpp"
+
+namespace crfcal::test {
+namespace {
+namespace fs = std::filesystem;
+
+std::string quote(const fs::path& p) { return "'" + p.string() + "'"; }
+
+nlohmann::json readJson(const fs::path& path) {
+  std::ifstream in(path);
+  return nlohmann::json::parse(in);
+}
+
+TEST(Cli, VersionAndHelp) {
+  const auto version = run(quote(crfcalBinary()) + " --version");
+  EXPECT_EQ(version.exit_code, 0);
+  EXPECT_NE(version.output.find("crfcal "), std::string::npos);
+  const auto help = run(quote(crfcalBinary()) + " --help");
+  EXPECT_EQ(help.exit_code, 0);
+  EXPECT_NE(help.output.find("simulate"), std::string::npos);
+  const auto sim_help = run(quote(crfcalBinary()) + " simulate --help");
+  EXPECT_EQ(sim_help.exit_code, 0);
+  // every option is listed with its default
+  EXPECT_NE(sim_help.output.find("--noise-var"), std::string::npos);
+  EXPECT_NE(sim_help.output.find("gamma:2.2"), std::string::npos);
+  const auto none = run(quote(crfcalBinary()));
+  EXPECT_NE(none.exit_code, 0);
+}
+
+struct RoundTripCase {
+  std::string crf;
+  ResponseModel model;
+};
+
+TEST(Cli, SimulateRoundTripsTheRequestedCurve) {
+  TempDir dir;
+  const std::vector<RoundTripCase> cases = {
+      {"gamma:2.2", GammaModel{2.2}},
+      {"ggcm:0.42,0.15,-0.1,0.05,0.02", GgcmModel{{0.42, 0.15, -0.1, 0.05, 0.02}}},
+      {"emor:0.5,-0.3,0.1", EmorModel{{0.5, -0.3, 0.1}}},
+  };
+  for (size_t i = 0; i < cases.size(); ++i) {
+    const fs::path out = dir / ("sim" + std::to_string(i));
+    const auto result = run(quote(crfcalBinary()) + " simulate -q --image " + quote(samples() / "levin09/im2.png") +
+                            " --crf " + cases[i].crf + " --kernel levin:3 --ratio 0.9 -o " + quote(out));
+    ASSERT_EQ(result.exit_code, 0) << result.output;
+    for (const char* name : {"sharp.png", "blurred.png", "kernel.png", "truth.json"}) EXPECT_TRUE(fs::exists(out / name)) << name;
+    const auto truth = readJson(out / "truth.json");
+    const auto phi = truth["inverse_crf"].get<std::vector<double>>();
+    ASSERT_EQ(phi.size(), 1024u);
+    const auto expected = sampleInverse(cases[i].model);
+    for (size_t j = 0; j < phi.size(); ++j) ASSERT_NEAR(phi[j], expected[j], 1e-6) << cases[i].crf << " at " << j;
+    EXPECT_DOUBLE_EQ(truth["exposure_ratio"].get<double>(), 0.9);
+
+    // The table form of the truth file round-trips too.
+    const fs::path again = dir / ("again" + std::to_string(i));
+    const auto second = run(quote(crfcalBinary()) + " simulate -q --image " + quote(samples() / "levin09/im2.png") +
+                            " --crf table:" + quote(out / "truth.json") + " --kernel levin:3 -o " + quote(again));
+    ASSERT_EQ(second.exit_code, 0) << second.output;
+    const auto phi2 = readJson(again / "truth.json")["inverse_crf"].get<std::vector<double>>();
+    for (size_t j = 0; j < phi2.size(); ++j) ASSERT_NEAR(phi2[j], expected[j], 1e-6);
+  }
+}
+
+TEST(Cli, SimulatedBlurredImageFollowsTheIrradianceModel) {
+  TempDir dir;
+  const fs::path out = dir / "sim";
+  const auto result = run(quote(crfcalBinary()) + " simulate -q --image " + quote(samples() / "levin09/im1.png") +
+                          " --crf gamma:2.2 --kernel levin:2 --bits 16 -o " + quote(out));
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  const cv::Mat sharp = io::readGrayUnit(out / "sharp.png");
+  const cv::Mat blurred = io::readGrayUnit(out / "blurred.png");
+  const cv::Mat kernel = io::kernelFromSpec("levin:2");
+  const ResponseCurve curve(GammaModel{2.2});
+  // Eq. 4 with r = 1 from the written sharp image: equal up to the 16-bit quantisation of both images
+  const cv::Mat predicted = irradianceBlur(sharp, curve, kernel, 1.0);
+  double max_error = 0;
+  cv::minMaxLoc(cv::abs(predicted - blurred), nullptr, &max_error);
+  EXPECT_LT(max_error, 2e-3);
+  // ... while the intensity model is far off near edges
+  double intensity_error = 0;
+  cv::minMaxLoc(cv::abs(intensityBlur(sharp, kernel) - blurred), nullptr, &intensity_error);
+  EXPECT_GT(intensity_error, 0.05);
+}
+
+TEST(Cli, BadInputGivesOneLineAndNoOutput) {
+  TempDir dir;
+  const fs::path out = dir / "never";
+  const std::string base = quote(crfcalBinary()) + " simulate -q -o " + quote(out);
+  struct Case {
+    std::string args;
+    std::string needle;
+  };
+  std::ofstream(dir / "garbage.png") << "this is not a PNG file";
+  std::ofstream(dir / "bad_kernel.txt") << "1 2\n3\n";
+  std::ofstream(dir / "negative_kernel.txt") << "1 -2\n3 1\n";
+  const std::vector<Case> cases = {
+      {" --image " + quote(dir / "missing.png"), "missing.png"},
+      {" --image " + quote(dir / "garbage.png"), "garbage.png"},
+      {" --image " + quote(samples() / "levin09/im1.png") + " --crf ggcm:-1,0", "ggcm:-1,0"},
+      {" --image " + quote(samples() / "levin09/im1.png") + " --crf banana:1", "banana"},
+      {" --image " + quote(samples() / "levin09/im1.png") + " --kernel " + quote(dir / "bad_kernel.txt"), "bad_kernel.txt"},
+      {" --image " + quote(samples() / "levin09/im1.png") + " --kernel " + quote(dir / "negative_kernel.txt"), "negative"},
+      {" --image " + quote(samples() / "levin09/im1.png") + " --kernel levin:9", "levin:9"},
+  };
+  for (const auto& c : cases) {
+    const auto result = run(base + c.args);
+    EXPECT_NE(result.exit_code, 0) << c.args;
+    EXPECT_NE(result.output.find(c.needle), std::string::npos) << c.args << " -> " << result.output;
+    // one line (ignoring a trailing newline)
+    std::string text = result.output;
+    while (!text.empty() && text.back() == '\n') text.pop_back();
+    EXPECT_EQ(text.find('\n'), std::string::npos) << result.output;
+    EXPECT_FALSE(fs::exists(out)) << c.args;
+  }
+  // nothing half-written beside the output either
+  for (const auto& entry : fs::directory_iterator(dir.path()))
+    EXPECT_EQ(entry.path().filename().string().find("partial"), std::string::npos) << entry.path();
+}
+
+}  // namespace
+}  // namespace crfcal::test
