@@ -1,0 +1,167 @@
+// crfcal compare: two reports (or a report and simulate's truth.json) side by side — φ RMSE and max error per
+// channel over [0,1] and over the range covered by data, the exposure ratios, an overlaid plot.
+// Exit status 3 (kExitTolerance) when --tolerance is given and a channel's RMSE exceeds it.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <optional>
+
+#include <nlohmann/json.hpp>
+
+#include "command.hpp"
+#include "crfcal/curve_comparison.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/plot.hpp"
+#include "crfcal/io/report.hpp"
+
+namespace crfcal::app {
+namespace {
+
+struct CompareArgs {
+  std::string a, b;
+  std::string output;
+  std::optional<double> tolerance;
+  std::string tolerance_range = "full";
+  int samples = 1024;
+  bool quiet = false;
+};
+
+std::string ratioText(const std::optional<double>& r) {
+  if (!r) return "-";
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.6g", *r);
+  return buffer;
+}
+
+nlohmann::json ratioJson(const std::optional<double>& r) { return r ? nlohmann::json(*r) : nlohmann::json(nullptr); }
+
+cv::Scalar channelColor(const std::string& channel, int index) {
+  if (channel == "R") return {40, 39, 214};
+  if (channel == "G") return {44, 160, 44};
+  if (channel == "B") return {180, 119, 31};
+  return io::seriesColor(index);
+}
+
+std::vector<double> grid(size_t n) {
+  std::vector<double> x(n);
+  for (size_t i = 0; i < n; ++i) x[i] = double(i) / double(n - 1);
+  return x;
+}
+
+int runCompare(const CompareArgs& args) {
+  const io::CalibrationReport a = io::readReport(args.a);
+  const io::CalibrationReport b = io::readReport(args.b);
+  CurveComparisonOptions options;
+  options.samples = args.samples;
+  const CurveComparison comparison = compareChannels(a.inverse_crf, b.inverse_crf, a.covered_range, b.covered_range, options);
+
+  const bool covered_only = args.tolerance_range == "covered";
+  const bool pass = !args.tolerance || comparison.withinTolerance(*args.tolerance, covered_only);
+
+  if (!args.quiet) {
+    std::printf("A: %s\nB: %s\n\n%s\n", args.a.c_str(), args.b.c_str(), comparison.summary().c_str());
+    std::printf("exposure ratio  %-12s %-12s\n", "A", "B");
+    std::printf("  exif          %-12s %-12s\n", ratioText(a.ratio_exif).c_str(), ratioText(b.ratio_exif).c_str());
+    std::printf("  fitted        %-12s %-12s", ratioText(a.ratio_fitted).c_str(), ratioText(b.ratio_fitted).c_str());
+    if (a.ratio_fitted && b.ratio_fitted && *b.ratio_fitted != 0)
+      std::printf("  (A/B - 1 = %+.3e)", *a.ratio_fitted / *b.ratio_fitted - 1);
+    std::printf("\n");
+  }
+
+  if (!args.output.empty()) {
+    io::OutputDirectory out(args.output);
+    std::vector<io::PlotSeries> series;
+    std::vector<std::string> drawn;  // "A:G", "B:G", … — a grey side's single curve is drawn once, in black
+    auto add = [&](const io::CalibrationReport& report, const char* side, const std::string& channel,
+                   const cv::Scalar& color, bool dashed) {
+      const std::string key = std::string(side) + ":" + channel;
+      if (std::find(drawn.begin(), drawn.end(), key) != drawn.end()) return;
+      drawn.push_back(key);
+      const bool grey = report.inverse_crf.size() == 1 && comparison.channels.size() > 1;
+      const auto& curve = report.inverse_crf.at(channel);
+      series.push_back({grid(curve.size()), curve, grey ? cv::Scalar(40, 40, 40) : color,
+                        std::string(side) + " " + channel, 2, false, dashed});
+    };
+    int index = 0;
+    for (const auto& c : comparison.channels) {
+      add(a, "A", c.channel_a, channelColor(c.channel, index), false);
+      add(b, "B", c.channel_b, channelColor(c.channel, index), true);
+      ++index;
+    }
+    // The covered range (where it is narrower than [0,1]): grey dashed verticals.
+    std::vector<double> edges;
+    for (const auto& c : comparison.channels)
+      for (double e : {c.covered.first, c.covered.second})
+        if (e > 0 && e < 1 && std::find(edges.begin(), edges.end(), e) == edges.end()) edges.push_back(e);
+    for (double e : edges)
+      series.push_back({{e, e}, {0.0, 1.0}, cv::Scalar(150, 150, 150), "", 1, false, true});
+    io::PlotOptions plot;
+    plot.title = "inverse CRF phi: A (solid) vs B (dashed)";
+    plot.x_label = "intensity x";
+    plot.y_label = "phi(x)";
+    plot.x_min = 0;
+    plot.x_max = 1;
+    plot.y_min = 0;
+    plot.y_max = 1;
+    io::writePlot(out.file("compare.png"), series, plot);
+
+    nlohmann::json json;
+    json["a"] = args.a;
+    json["b"] = args.b;
+    json["samples"] = args.samples;
+    json["channels"] = nlohmann::json::array();
+    for (const auto& c : comparison.channels)
+      json["channels"].push_back({{"channel", c.channel},
+                                  {"channel_a", c.channel_a},
+                                  {"channel_b", c.channel_b},
+                                  {"rmse", c.rmse},
+                                  {"max_error", c.max_error},
+                                  {"argmax", c.argmax},
+                                  {"covered_range", {c.covered.first, c.covered.second}},
+                                  {"covered_source", c.covered_source},
+                                  {"rmse_covered", c.rmse_covered},
+                                  {"max_error_covered", c.max_error_covered}});
+    json["worst_rmse"] = comparison.worst_rmse;
+    json["worst_rmse_covered"] = comparison.worst_rmse_covered;
+    json["exposure_ratio"] = {{"a", {{"exif", ratioJson(a.ratio_exif)}, {"fitted", ratioJson(a.ratio_fitted)}}},
+                              {"b", {{"exif", ratioJson(b.ratio_exif)}, {"fitted", ratioJson(b.ratio_fitted)}}}};
+    if (args.tolerance) {
+      json["tolerance"] = *args.tolerance;
+      json["tolerance_range"] = args.tolerance_range;
+      json["within_tolerance"] = pass;
+    }
+    io::writeTextFile(out.file("compare.json"), json.dump(2) + "\n");
+    out.commit();
+    if (!args.quiet) std::printf("wrote %s/{compare.png, compare.json}\n", args.output.c_str());
+  }
+
+  if (args.tolerance) {
+    std::printf("tolerance %.3e on RMSE over %s: %s\n", *args.tolerance,
+                covered_only ? "the covered range" : "[0,1]", pass ? "PASS" : "FAIL");
+    return pass ? kExitOk : kExitTolerance;
+  }
+  return kExitOk;
+}
+
+const CommandRegistration registration(
+    55, "compare", "Compare two reports' curves: RMSE/max error per channel, exposure ratios, overlaid plot",
+    [](CLI::App& command) {
+      auto args = std::make_shared<CompareArgs>();
+      command.add_option("a", args->a, "First report.json (or truth.json)")->required();
+      command.add_option("b", args->b, "Second report.json (or truth.json)")->required();
+      command.add_option("-o,--output", args->output, "Directory for compare.png and compare.json (atomic)");
+      command.add_option("--tolerance", args->tolerance,
+                         "Exit with status 3 if any channel's phi RMSE exceeds this")
+          ->check(CLI::NonNegativeNumber);
+      command.add_option("--tolerance-range", args->tolerance_range,
+                         "RMSE the tolerance applies to: full ([0,1]) or covered (range supported by data)")
+          ->check(CLI::IsMember({"full", "covered"}));
+      command.add_option("--samples", args->samples, "Comparison grid points on [0,1]")->check(CLI::Range(2, 1 << 20));
+      command.add_flag("-q,--quiet", args->quiet, "Print only the tolerance verdict");
+      return [args] { return runCompare(*args); };
+    });
+
+}  // namespace
+}  // namespace crfcal::app

@@ -1,0 +1,82 @@
+// crfcal export: a report's response curve as a lookup table for other tools (OpenCV, OCIO, Resolve, pfstools,
+// Hugin, spreadsheets). Formats and their readers: crfcal/io/lut_export.hpp, docs/results-parts/export.md.
+#include <cstdio>
+#include <memory>
+
+#include "command.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/io/lut_export.hpp"
+#include "crfcal/io/report.hpp"
+
+namespace crfcal::app {
+namespace {
+
+struct ExportArgs {
+  std::string report;
+  std::string output;
+  std::string format;
+  std::string direction;  // empty: the format's natural direction (hugin: forward, else inverse)
+  std::vector<double> range;
+  int size = 0;
+  std::string channel;
+  std::string title;
+};
+
+int runExport(const ExportArgs& args) {
+  io::LutExportOptions options;
+  if (!args.format.empty()) {
+    options.format = io::parseLutFormat(args.format);
+  } else if (const auto guess = io::lutFormatFromExtension(args.output)) {
+    options.format = *guess;
+  } else {
+    throw InvalidInput("cannot tell the format from '" + args.output + "': give --format");
+  }
+  if (args.direction.empty())
+    options.direction = options.format == io::LutFormat::Hugin ? io::LutDirection::Forward : io::LutDirection::Inverse;
+  else
+    options.direction = args.direction == "forward" ? io::LutDirection::Forward : io::LutDirection::Inverse;
+  if (!args.range.empty()) {
+    options.range_min = args.range.at(0);
+    options.range_max = args.range.at(1);
+  }
+  options.size = args.size;
+  options.channel = args.channel;
+  if (!args.title.empty()) options.title = args.title;
+  else if (options.direction == io::LutDirection::Forward) options.title = "crfcal camera response";
+  options.check();
+
+  const io::CalibrationReport report = io::readReport(args.report);
+  const io::LutExportResult result = io::exportLut(report, args.output, options);
+  std::printf("%s\n", result.summary().c_str());
+  return kExitOk;
+}
+
+const CommandRegistration registration(
+    50, "export", "Write a report's response curve as a LUT for other tools (csv, opencv, cube, spi1d, clf, pfstools, hugin)",
+    [](CLI::App& command) {
+      auto args = std::make_shared<ExportArgs>();
+      command.add_option("report", args->report, "report.json (calibrate/chart) or simulate's truth.json")
+          ->required();
+      command.add_option("-o,--output", args->output, "Output file (written atomically)")->required();
+      command.add_option("-f,--format", args->format,
+                         "csv | opencv (cv::FileStorage, MergeDebevec response) | cube | spi1d | clf | pfstools | "
+                         "hugin (EMoR Ra..Re); default: from the output's extension");
+      command.add_option("--direction", args->direction,
+                         "inverse: phi, intensity -> irradiance (default); forward: psi, irradiance -> intensity "
+                         "(default for hugin)")
+          ->check(CLI::IsMember({"inverse", "forward"}));
+      command.add_option("--size", args->size,
+                         "LUT nodes (default 4096 for cube/spi1d/clf, 256 for opencv/pfstools, 1024 for csv)")
+          ->check(CLI::Range(2, 1 << 24));
+      command.add_option("--range", args->range, "Input domain LO,HI within [0,1] (csv, cube, spi1d, clf)")
+          ->expected(2)
+          ->delimiter(',');
+      command.add_option("--channel", args->channel,
+                         "Write this channel into R, G and B (pfstools: one luminance 'IY' curve; hugin: default G)")
+          ->check(CLI::IsMember({"R", "G", "B"}));
+      command.add_option("--title", args->title, "Title written into cube/clf files");
+      return [args] { return runExport(*args); };
+    });
+
+}  // namespace
+}  // namespace crfcal::app

@@ -1,0 +1,66 @@
+#pragma once
+// Comparison of two inverse response curves φ_A, φ_B (e.g. a calibration against simulate's truth, or two
+// calibrations of the same camera): RMSE and maximum absolute error per channel over the whole domain [0,1]
+// and over the intensity range actually covered by data. The RMSE over [0,1] is the benchmark error of the
+// seed's Sec. 5 (crfcal::curveRmse), evaluated here on a uniform grid after resampling both curves.
+// Pure computation: no file I/O, no printing.
+#include <map>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace crfcal {
+
+using IntensityRange = std::pair<double, double>;  // [lo, hi] ⊂ [0,1]
+
+struct CurveComparisonOptions {
+  int samples = 1024;  // uniform grid x = i/(samples−1) on which both curves are compared (≥ 2; 1024 = the
+                       // resolution at which curves are exchanged, kCurveSamples)
+  void check() const;  // throws InvalidInput
+};
+
+struct ChannelComparison {
+  std::string channel;    // output label: "R", "G", "B" (a grey side is compared against each channel of the other)
+  std::string channel_a;  // channel of A used
+  std::string channel_b;  // channel of B used
+  double rmse = 0;        // over [0,1]
+  double max_error = 0;   // max |φ_A − φ_B| over [0,1]
+  double argmax = 0;      // x of max_error
+  IntensityRange covered{0.0, 1.0};
+  std::string covered_source;  // "A∩B", "A", "B" (from the reports' covered_range) or "defined" (finite on both)
+  double rmse_covered = 0;
+  double max_error_covered = 0;
+  int samples_covered = 0;  // grid points inside the covered range
+};
+
+struct CurveComparison {
+  std::vector<ChannelComparison> channels;
+  double worst_rmse = 0;          // max over channels of rmse (over [0,1])
+  double worst_rmse_covered = 0;  // max over channels of rmse_covered
+  // True when every channel's RMSE (over [0,1], or over the covered range) is ≤ tolerance.
+  bool withinTolerance(double tolerance, bool covered_only = false) const;
+  std::string summary() const;  // a readable table, one line per channel
+};
+
+// Linear interpolation of samples at x = i/(n−1) (n ≥ 2); x is clamped to [0,1]. NaN samples propagate.
+double interpolateSamples(const std::vector<double>& samples, double x);
+
+// Compares two curves given by samples at x = i/(n−1) (the two may have different n). `covered_a/b` are the
+// ranges supported by data for each curve, if known; the covered range is their intersection (or the one that
+// is known), else the range where both curves are finite. Throws InvalidInput (fewer than 2 samples, empty
+// covered intersection).
+ChannelComparison compareCurves(const std::vector<double>& a, const std::vector<double>& b,
+                                const std::optional<IntensityRange>& covered_a = {},
+                                const std::optional<IntensityRange>& covered_b = {},
+                                const CurveComparisonOptions& options = {});
+
+// Per channel. Channels present in both are compared pairwise; a single-channel (grey) side is compared against
+// every channel of the other side. Throws InvalidInput if no pair can be formed.
+CurveComparison compareChannels(const std::map<std::string, std::vector<double>>& a,
+                                const std::map<std::string, std::vector<double>>& b,
+                                const std::map<std::string, IntensityRange>& covered_a = {},
+                                const std::map<std::string, IntensityRange>& covered_b = {},
+                                const CurveComparisonOptions& options = {});
+
+}  // namespace crfcal
