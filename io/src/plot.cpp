@@ -18,7 +18,8 @@ cv::Scalar seriesColor(int i) {
 
 namespace {
 
-std::string tickLabel(double v) {
+std::string tickLabel(double v, double step) {
+  if (std::abs(v) < 1e-9 * step) v = 0;  // no "-0" from accumulated rounding
   char buffer[32];
   std::snprintf(buffer, sizeof buffer, "%.3g", v);
   return buffer;
@@ -69,12 +70,12 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
   for (double step = niceStep(x1 - x0), t = std::ceil(x0 / step) * step; t <= x1 + 1e-9 * step; t += step) {
     const int x = static_cast<int>(std::lround(px(t)));
     cv::line(canvas, {x, area.y}, {x, area.y + area.height}, grid, 1);
-    cv::putText(canvas, tickLabel(t), {x - 15, area.y + area.height + 20}, font, 0.45, black, 1, cv::LINE_AA);
+    cv::putText(canvas, tickLabel(t, x1 - x0), {x - 15, area.y + area.height + 20}, font, 0.45, black, 1, cv::LINE_AA);
   }
   for (double step = niceStep(y1 - y0), t = std::ceil(y0 / step) * step; t <= y1 + 1e-9 * step; t += step) {
     const int y = static_cast<int>(std::lround(py(t)));
     cv::line(canvas, {area.x, y}, {area.x + area.width, y}, grid, 1);
-    cv::putText(canvas, tickLabel(t), {8, y + 5}, font, 0.45, black, 1, cv::LINE_AA);
+    cv::putText(canvas, tickLabel(t, y1 - y0), {8, y + 5}, font, 0.45, black, 1, cv::LINE_AA);
   }
   cv::rectangle(canvas, area, black, 1);
   cv::putText(canvas, options.x_label, {area.x + area.width / 2 - 30, canvas.rows - 15}, font, 0.55, black, 1, cv::LINE_AA);
