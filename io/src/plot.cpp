@@ -60,7 +60,7 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
   }
 
   cv::Mat canvas(options.size, CV_8UC3, cv::Scalar(255, 255, 255));
-  const int left = 80, right = 20, top = options.title.empty() ? 20 : 45, bottom = 60;
+  const int left = 80, right = 20, top = options.title.empty() ? 30 : 58, bottom = 60;
   const cv::Rect area(left, top, canvas.cols - left - right, canvas.rows - top - bottom);
   auto px = [&](double x) { return area.x + (x - x0) / (x1 - x0) * area.width; };
   auto py = [&](double y) { return area.y + area.height - (y - y0) / (y1 - y0) * area.height; };

@@ -1,0 +1,525 @@
+// crfcal bench: benchmark groups. `crfcal bench synthetic` runs the seed's Sec. 5 protocol (10 camera CRFs ×
+// 8 Levin kernels × 3 noise variances on I = 240 cases) for the seed's method as published and for crfcal's
+// fitter, and prints the table the seed printed (mean φ RMSE 0.0155 / 0.0137 / 0.0169) beside ours.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <numeric>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "bench_command.hpp"
+#include "command.hpp"
+#include "crfcal/blur_model.hpp"
+#include "crfcal/crf_fitter.hpp"
+#include "crfcal/emor.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/ggcm.hpp"
+#include "crfcal/level_mixture.hpp"
+#include "crfcal/response_curve.hpp"
+#include "crfcal/simulation.hpp"
+#include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/image_io.hpp"
+#include "crfcal/io/kernel_io.hpp"
+#include "crfcal/io/plot.hpp"
+#include "crfcal/io/response_io.hpp"
+#include "progress.hpp"
+
+namespace fs = std::filesystem;
+
+namespace crfcal::app {
+namespace {
+
+struct BenchEntry {
+  int order;
+  std::string name;
+  std::string description;
+  CommandSetup setup;
+};
+std::vector<BenchEntry>& benchRegistry() {
+  static std::vector<BenchEntry> entries;
+  return entries;
+}
+
+}  // namespace
+
+BenchRegistration::BenchRegistration(int order, std::string name, std::string description, CommandSetup setup) {
+  benchRegistry().push_back({order, std::move(name), std::move(description), std::move(setup)});
+}
+
+namespace {
+
+const CommandRegistration bench_registration(
+    60, "bench", "Benchmarks (subcommands: synthetic, ...)", [](CLI::App& command) {
+      command.require_subcommand(1);
+      auto entries = benchRegistry();
+      std::sort(entries.begin(), entries.end(), [](const auto& a, const auto& b) { return a.order < b.order; });
+      auto runners = std::make_shared<std::vector<std::pair<CLI::App*, std::function<int()>>>>();
+      for (const auto& entry : entries) {
+        CLI::App* sub = command.add_subcommand(entry.name, entry.description);
+        sub->option_defaults()->always_capture_default();
+        runners->emplace_back(sub, entry.setup(*sub));
+      }
+      return [runners]() -> int {
+        for (auto& [sub, run] : *runners)
+          if (sub->parsed()) return run();
+        return kExitUsage;
+      };
+    });
+
+// ------------------------------------------------------------------------------------------------------------
+// bench synthetic
+
+constexpr double kSeedMean[3] = {0.0155, 0.0137, 0.0169};  // Sec. 5, mean φ RMSE at σ² = 0.001, 0.005, 0.01
+double kNoiseVariances[3] = {0.001, 0.005, 0.01};
+
+struct SyntheticArgs {
+  std::vector<std::string> images;
+  std::string curves;
+  std::string json;
+  std::string plot;
+  std::string method = "both";
+  std::vector<std::string> variants;
+  int cases_limit = 0;
+  std::vector<double> noise_vars;
+  int threads = 2;
+  double ratio = 1.0;
+  bool quiet = false;
+  bool timing = true;
+};
+
+struct Curve {
+  std::string name;
+  std::vector<double> phi;  // 1024 samples
+};
+
+struct Variant {
+  std::string name;
+  std::string description;
+  CrfFitOptions options;
+  bool true_sigma = false;  // oracle σ (ablation only)
+};
+
+std::vector<Variant> allVariants() {
+  std::vector<Variant> v;
+  CrfFitOptions seed = CrfFitOptions::seed();
+  v.push_back({"seed", "seed as published: Eq. 22, Gamma weights, GGCM n=4, Nelder-Mead, noisy I as is", seed});
+  CrfFitOptions s = seed;
+  s.noise = NoiseHandling::denoise;
+  v.push_back({"seed+denoise", "seed + bilateral filter on I (sigma estimated)", s});
+  s = seed;
+  s.noise = NoiseHandling::debias;
+  v.push_back({"seed+debias", "seed + debiased level functions g = R phi (sigma estimated)", s});
+  CrfFitOptions d;
+  d.noise = NoiseHandling::none;
+  v.push_back({"aware-nonoise", "crfcal objective without noise handling (edge pixels from B, joint r)", d});
+  d = CrfFitOptions{};
+  d.objective = CrfObjective::noise_aware_intensity;
+  v.push_back({"default", "crfcal default: debiased mixtures + variance-corrected intensity energy", d});
+  Variant oracle{"default+true-sigma", "crfcal default with the true sigma (oracle)", d, true};
+  v.push_back(oracle);
+  d.model = CrfModelChoice::ggcm;
+  v.push_back({"default-ggcm", "crfcal default, GGCM only", d});
+  d.model = CrfModelChoice::emor;
+  v.push_back({"default-emor", "crfcal default, EMoR only", d});
+  d = CrfFitOptions{};
+  d.optimizer = CrfOptimizer::nelder_mead;
+  v.push_back({"default-nm", "crfcal default with Nelder-Mead", d});
+  d = CrfFitOptions{};
+  d.objective = CrfObjective::instrumental;
+  v.push_back({"iv", "instrumental variables (B-only instruments), debiased mixtures, EMoR + GGCM projection", d});
+  d.noise = NoiseHandling::none;
+  v.push_back({"iv-nodebias", "instrumental variables without debiasing", d});
+  d = CrfFitOptions{};
+  d.fit_ratio = false;
+  v.push_back({"default-fixr", "crfcal default with r fixed at its initial value", d});
+  s = seed;
+  s.fit_ratio = false;
+  v.push_back({"seed-fixr", "seed with r fixed at its initial value (no Eq. 25)", s});
+  d = CrfFitOptions{};
+  d.objective = CrfObjective::corrected_irradiance;
+  d.optimizer = CrfOptimizer::lbfgs;
+  v.push_back({"irradiance-eiv", "corrected-score irradiance-domain quadratic form (experimental)", d});
+  return v;
+}
+
+std::vector<Curve> loadCurves(const std::string& dir_arg, bool& stand_ins) {
+  std::vector<Curve> curves;
+  const fs::path dir = dir_arg.empty() ? io::samplesDirectory() / "camera_curves" : fs::path(dir_arg);
+  stand_ins = false;
+  if (fs::is_directory(dir)) {
+    std::vector<fs::path> files;
+    for (const auto& entry : fs::directory_iterator(dir))
+      if (entry.path().extension() == ".csv") files.push_back(entry.path());
+    std::sort(files.begin(), files.end());
+    for (const auto& f : files) curves.push_back({f.stem().string(), io::readCurveTable(f)});
+  }
+  if (curves.empty()) {  // stand-ins: γ curves and EMoR curves
+    stand_ins = true;
+    for (double g : {1.8, 2.2, 2.6}) curves.push_back({"gamma" + std::to_string(g).substr(0, 3), sampleInverse(GammaModel{g})});
+    const std::vector<std::vector<double>> coeffs{{0.3, -0.2}, {-0.5, 0.1}, {0.8, 0.2, -0.1}, {-0.2, -0.3}, {0.5, 0.0, 0.2},
+                                                  {-0.8, 0.3}, {0.1, 0.4}};
+    int i = 0;
+    for (const auto& c : coeffs) curves.push_back({"emor" + std::to_string(i++), sampleInverse(EmorModel{c})});
+  }
+  if (curves.size() > 10) curves.resize(10);
+  return curves;
+}
+
+struct CaseResult {
+  int curve = 0, kernel = 0, level = 0, image = 0;
+  std::map<std::string, double> rmse, seconds;
+  std::map<std::string, std::vector<double>> phi;
+  std::map<std::string, std::string> chosen;
+  double sigma_true = 0, sigma_est = 0;
+};
+
+struct Stats {
+  double mean = 0, median = 0, max = 0, seconds = 0;
+  int n = 0;
+};
+Stats stats(std::vector<double> v, double seconds) {
+  Stats s;
+  s.n = static_cast<int>(v.size());
+  if (v.empty()) return s;
+  std::sort(v.begin(), v.end());
+  s.mean = std::accumulate(v.begin(), v.end(), 0.0) / v.size();
+  s.median = v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+  s.max = v.back();
+  s.seconds = seconds / v.size();
+  return s;
+}
+
+double since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+int runSynthetic(const SyntheticArgs& args) {
+  Progress progress(args.quiet);
+  if (args.noise_vars.size() == 3)
+    for (int i = 0; i < 3; ++i) kNoiseVariances[i] = args.noise_vars[i];
+  bool stand_ins = false;
+  const std::vector<Curve> curves = loadCurves(args.curves, stand_ins);
+  std::vector<std::string> image_paths = args.images;
+  if (image_paths.empty())
+    for (int i = 1; i <= 4; ++i) image_paths.push_back((io::samplesDirectory() / "levin09" / ("im" + std::to_string(i) + ".png")).string());
+  std::vector<cv::Mat> images;
+  for (const auto& p : image_paths) images.push_back(io::readGrayUnit(p));
+  std::vector<cv::Mat> kernels;
+  for (int k = 1; k <= 8; ++k) kernels.push_back(io::kernelFromSpec("levin:" + std::to_string(k)));
+
+  // Variants to run.
+  std::vector<Variant> variants;
+  const auto all = allVariants();
+  auto find = [&](const std::string& name) {
+    for (const auto& v : all)
+      if (v.name == name) return v;
+    throw InvalidInput("bench: unknown variant '" + name + "'");
+  };
+  if (args.method == "seed" || args.method == "both") variants.push_back(find("seed"));
+  if (args.method == "default" || args.method == "both") variants.push_back(find("default"));
+  for (const auto& name : args.variants)
+    if (std::none_of(variants.begin(), variants.end(), [&](const Variant& v) { return v.name == name; }))
+      variants.push_back(find(name));
+
+  struct Case {
+    int curve, kernel, level, image;
+  };
+  std::vector<Case> cases;
+  for (int level = 0; level < 3; ++level)
+    for (int c = 0; c < static_cast<int>(curves.size()); ++c)
+      for (int k = 0; k < 8; ++k) cases.push_back({c, k, level, (c + k) % static_cast<int>(images.size())});
+  if (args.cases_limit > 0 && args.cases_limit < static_cast<int>(cases.size())) {
+    // spread the subset over curves, kernels and levels
+    std::vector<Case> subset;
+    const double step = double(cases.size()) / args.cases_limit;
+    for (int i = 0; i < args.cases_limit; ++i) subset.push_back(cases[static_cast<std::size_t>(i * step)]);
+    cases = subset;
+  }
+
+  std::vector<CaseResult> results(cases.size());
+  std::atomic<int> done{0};
+  std::mutex progress_mutex;
+  progress.stage("bench synthetic: " + std::to_string(cases.size()) + " cases x " + std::to_string(variants.size()) +
+                 " methods");
+  const auto t_all = std::chrono::steady_clock::now();
+  std::string failure;
+  cv::parallel_for_(
+      cv::Range(0, static_cast<int>(cases.size())),
+      [&](const cv::Range& range) {
+        for (int i = range.start; i < range.end; ++i) {
+          const Case& cs = cases[i];
+          CaseResult& out = results[i];
+          out.curve = cs.curve;
+          out.kernel = cs.kernel;
+          out.level = cs.level;
+          out.image = cs.image;
+          try {
+            SimulationOptions sim;
+            sim.noise_variance = kNoiseVariances[cs.level];
+            sim.ratio = args.ratio;
+            sim.seed = 1000003ULL * (cs.curve + 1) + 1009ULL * (cs.kernel + 1) + cs.level + 1;
+            const ResponseModel truth = TableModel{curves[cs.curve].phi};
+            const SimulationResult pair = simulatePair(images[cs.image], truth, kernels[cs.kernel], sim);
+            out.sigma_true = std::sqrt(sim.noise_variance);
+            for (const Variant& v : variants) {
+              CrfFitOptions options = v.options;
+              options.threads = 1;
+              if (v.true_sigma) options.noise_sigma = out.sigma_true;
+              const auto t0 = std::chrono::steady_clock::now();
+              const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, kernels[cs.kernel], options);
+              out.seconds[v.name] = since(t0);
+              out.rmse[v.name] = curveRmse(fit.inverse_crf, curves[cs.curve].phi);
+              out.phi[v.name] = fit.inverse_crf;
+              out.chosen[v.name] = fit.chosen;
+              if (v.name == "default") out.sigma_est = fit.noise_sigma;
+            }
+          } catch (const std::exception& e) {
+            std::lock_guard lock(progress_mutex);
+            failure = e.what();
+          }
+          const int n = ++done;
+          std::lock_guard lock(progress_mutex);
+          progress.update(double(n) / cases.size(), std::to_string(n) + "/" + std::to_string(cases.size()));
+        }
+      },
+      std::max(1, args.threads) == 1 ? 1.0 : static_cast<double>(cases.size()));
+  const double wall = since(t_all);
+  progress.done();
+  if (!failure.empty()) throw Error("bench synthetic: a case failed: " + failure);
+
+  // GGCM representational floor: best GGCM fit of each true curve.
+  std::vector<double> floor_rmse;
+  for (const auto& c : curves) {
+    const auto fit = ggcm::fitInverse(c.phi);
+    floor_rmse.push_back(fit.rmse);
+  }
+  const double floor_mean = std::accumulate(floor_rmse.begin(), floor_rmse.end(), 0.0) / floor_rmse.size();
+
+  // Table.
+  std::printf("crfcal bench synthetic - seed Sec. 5 protocol: %zu CRFs x 8 Levin kernels x 3 noise variances on I "
+              "(%zu cases), %zu latent image(s)\n",
+              curves.size(), cases.size(), images.size());
+  std::printf("curves: %s%s\n", stand_ins ? "STAND-INS (samples/camera_curves absent): " : "", [&] {
+    std::string s;
+    for (const auto& c : curves) s += (s.empty() ? "" : ", ") + c.name;
+    return s;
+  }().c_str());
+  std::printf("error: RMSE of phi over 1024 points of [0,1]; wall time %.1f s on %d thread(s)\n\n", wall, args.threads);
+  std::printf("%-20s %9s %9s %9s %9s %9s %10s\n", "method", "noise var", "mean", "median", "max", "seed mean", "s/case");
+  nlohmann::json json;
+  json["cases"] = cases.size();
+  json["curves"] = nlohmann::json::array();
+  for (const auto& c : curves) json["curves"].push_back(c.name);
+  json["stand_in_curves"] = stand_ins;
+  json["seed_published_mean_rmse"] = {kSeedMean[0], kSeedMean[1], kSeedMean[2]};
+  json["ggcm_floor"] = {{"mean_rmse", floor_mean}, {"per_curve", floor_rmse}};
+  json["wall_seconds"] = wall;
+  for (const Variant& v : variants) {
+    nlohmann::json levels = nlohmann::json::array();
+    for (int level = 0; level < 3; ++level) {
+      std::vector<double> errs;
+      double secs = 0;
+      for (const auto& r : results)
+        if (r.level == level && r.rmse.count(v.name)) {
+          errs.push_back(r.rmse.at(v.name));
+          secs += r.seconds.at(v.name);
+        }
+      if (errs.empty()) continue;
+      const Stats s = stats(errs, secs);
+      std::printf("%-20s %9.3f %9.4f %9.4f %9.4f %9.4f %10.3f\n", v.name.c_str(), kNoiseVariances[level], s.mean,
+                  s.median, s.max, kSeedMean[level], s.seconds);
+      levels.push_back({{"noise_var", kNoiseVariances[level]}, {"mean_rmse", s.mean}, {"median_rmse", s.median},
+                        {"max_rmse", s.max}, {"seconds_per_case", s.seconds}, {"cases", s.n}});
+    }
+    if (v.name == "default") json["levels"] = levels;
+    else if (v.name == "seed") json["seed_method"] = levels;
+    json["variants"][v.name] = {{"description", v.description}, {"levels", levels}};
+  }
+  std::printf("%-20s %9s %9.4f   (best GGCM fit of each true curve: the lower bound for GGCM fits)\n", "ggcm floor",
+              "-", floor_mean);
+  // σ estimation accuracy and model choice.
+  {
+    std::map<int, std::vector<double>> rel;
+    std::map<std::string, int> chosen;
+    for (const auto& r : results) {
+      if (r.sigma_est > 0) rel[r.level].push_back(r.sigma_est / r.sigma_true);
+      if (r.chosen.count("default")) ++chosen[r.chosen.at("default")];
+    }
+    for (auto& [level, v] : rel)
+      std::printf("default: estimated/true noise sigma at var %.3f: mean %.3f\n", kNoiseVariances[level],
+                  std::accumulate(v.begin(), v.end(), 0.0) / v.size());
+    for (auto& [kind, n] : chosen) std::printf("default: model chosen %s in %d cases\n", kind.c_str(), n);
+  }
+
+  // Speed: sparse level mixture vs direct convolution, and one fit of a 512x384 pair with a 27x27 kernel.
+  if (args.timing) {
+    cv::Mat big;
+    cv::resize(images[0], big, cv::Size(512, 384), 0, 0, cv::INTER_CUBIC);
+    cv::min(cv::max(big, 0.0), 1.0, big);
+    const cv::Mat k27 = io::kernelFromSpec("levin:4");
+    SimulationOptions sim;
+    sim.noise_variance = 0.005;
+    const SimulationResult pair = simulatePair(big, TableModel{curves[0].phi}, k27, sim);
+    const ResponseCurve curve(TableModel{curves[0].phi});
+    const int reps = 20;
+    auto t0 = std::chrono::steady_clock::now();
+    for (int i = 0; i < reps; ++i) {
+      const cv::Mat blurred = convolve(curve.inverse(pair.sharp), k27);
+      (void)blurred;
+    }
+    const double direct = since(t0) / reps;
+    // the pixels the default fitter uses (B edges), mixture built once
+    const LevelImage levels = toLevels(pair.sharp, 256);
+    const cv::Rect inside = interiorRect(big.size(), k27);
+    const LocalRange range = localRange(pair.blurred, k27);
+    std::vector<cv::Point> pixels;
+    for (int y = inside.y; y < inside.y + inside.height; ++y)
+      for (int x = inside.x; x < inside.x + inside.width; ++x)
+        if (range.max.at<double>(y, x) - range.min.at<double>(y, x) > 0.02) pixels.emplace_back(x, y);
+    t0 = std::chrono::steady_clock::now();
+    const LevelMixture mixture = LevelMixture::build(levels, k27, pixels);
+    const double build = since(t0);
+    std::vector<double> lut = curve.inverseLut(8), out(pixels.size());
+    t0 = std::chrono::steady_clock::now();
+    for (int i = 0; i < reps; ++i) mixture.mix(lut, out);
+    const double sparse = since(t0) / reps;
+    std::vector<cv::Point> sub = pixels;
+    if (sub.size() > 20000) {
+      std::vector<cv::Point> s2;
+      for (std::size_t i = 0; i < sub.size(); i += sub.size() / 20000 + 1) s2.push_back(sub[i]);
+      sub = s2;
+    }
+    const LevelMixture mixture_sub = LevelMixture::build(levels, k27, sub);
+    std::vector<double> out_sub(sub.size());
+    t0 = std::chrono::steady_clock::now();
+    for (int i = 0; i < reps; ++i) mixture_sub.mix(lut, out_sub);
+    const double sparse_sub = since(t0) / reps;
+    CrfFitOptions options;
+    options.threads = 1;
+    t0 = std::chrono::steady_clock::now();
+    const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, k27, options);
+    const double fit_s = since(t0);
+    CrfFitOptions seed = CrfFitOptions::seed();
+    seed.threads = 1;
+    t0 = std::chrono::steady_clock::now();
+    const CrfFitResult fit_seed = fitInverseCrf(pair.sharp, pair.blurred, k27, seed);
+    const double seed_s = since(t0);
+    std::printf("\nspeed (512x384, 27x27 Levin kernel 4, one core):\n");
+    std::printf("  direct: phi LUT + full-image convolution per evaluation: %.3f ms\n", direct * 1e3);
+    std::printf("  sparse mixture over %zu edge pixels (%zu non-zeros, built once in %.1f ms): %.3f ms  (%.1fx)\n",
+                pixels.size(), mixture.nonZeros(), build * 1e3, sparse * 1e3, direct / sparse);
+    std::printf("  sparse mixture over the %zu pixels the default keeps: %.3f ms  (%.1fx)\n", sub.size(),
+                sparse_sub * 1e3, direct / sparse_sub);
+    std::printf("  one fit, crfcal default: %.3f s (%d evaluations, phi RMSE %.4f); seed method: %.3f s (%d evaluations, "
+                "phi RMSE %.4f)\n",
+                fit_s, fit.evaluations, curveRmse(fit.inverse_crf, curves[0].phi), seed_s, fit_seed.evaluations,
+                curveRmse(fit_seed.inverse_crf, curves[0].phi));
+    json["speed"] = {{"direct_convolution_ms", direct * 1e3}, {"sparse_mixture_ms", sparse * 1e3},
+                     {"sparse_mixture_default_pixels_ms", sparse_sub * 1e3}, {"speedup", direct / sparse},
+                     {"speedup_default_pixels", direct / sparse_sub}, {"fit_default_seconds", fit_s},
+                     {"fit_seed_seconds", seed_s}, {"edge_pixels", pixels.size()}};
+  }
+
+  if (!args.json.empty()) io::writeTextFile(args.json, json.dump(2) + "\n");
+  if (!args.plot.empty()) {
+    io::OutputDirectory out(args.plot);
+    const int curve = 0;
+    for (const Variant& v : variants) {
+      for (int level = 0; level < 3; ++level) {
+        std::vector<io::PlotSeries> series;
+        std::vector<double> x(kCurveSamples);
+        for (int i = 0; i < kCurveSamples; ++i) x[i] = double(i) / (kCurveSamples - 1);
+        int count = 0;
+        for (const auto& r : results)
+          if (r.curve == curve && r.level == level && r.phi.count(v.name)) {
+            io::PlotSeries s{x, r.phi.at(v.name), cv::Scalar(200, 80, 0), count == 0 ? "estimated (8 kernels)" : "", 1};
+            series.push_back(s);
+            ++count;
+          }
+        if (count == 0) continue;
+        series.push_back({x, curves[curve].phi, cv::Scalar(0, 0, 220), "true " + curves[curve].name, 2});
+        io::PlotOptions po;
+        std::ostringstream title;
+        title << v.name << ": noise var " << kNoiseVariances[level];
+        po.title = title.str();
+        po.x_label = "intensity";
+        po.y_label = "phi (irradiance)";
+        po.x_min = 0; po.x_max = 1; po.y_min = 0; po.y_max = 1;
+        io::writePlot(out.file("fig5_" + v.name + "_var" + std::to_string(level) + ".png"), series, po);
+      }
+      // error per curve (the right panel of Fig. 5)
+      std::vector<io::PlotSeries> per;
+      for (int level = 0; level < 3; ++level) {
+        io::PlotSeries s;
+        s.color = io::seriesColor(level);
+        std::ostringstream label;
+        label << "var " << kNoiseVariances[level];
+        s.label = label.str();
+        s.markers = false;
+        for (int c = 0; c < static_cast<int>(curves.size()); ++c) {
+          std::vector<double> e;
+          for (const auto& r : results)
+            if (r.curve == c && r.level == level && r.rmse.count(v.name)) e.push_back(r.rmse.at(v.name));
+          if (e.empty()) continue;
+          s.x.push_back(c + 1);
+          s.y.push_back(std::accumulate(e.begin(), e.end(), 0.0) / e.size());
+        }
+        if (!s.x.empty()) per.push_back(s);
+      }
+      io::PlotOptions po;
+      po.title = v.name + ": mean RMSE per CRF";
+      po.x_label = "CRF";
+      po.y_label = "mean phi RMSE";
+      po.y_min = 0;
+      if (!per.empty()) io::writePlot(out.file("fig5_" + v.name + "_rmse_per_crf.png"), per, po);
+    }
+    out.commit();
+    std::printf("wrote plots to %s\n", args.plot.c_str());
+  }
+  return kExitOk;
+}
+
+const BenchRegistration synthetic_registration(
+    10, "synthetic",
+    "The seed's Sec. 5 benchmark: 10 camera CRFs x 8 Levin kernels x noise var 0.001/0.005/0.01 on I (240 cases)",
+    [](CLI::App& command) {
+      auto args = std::make_shared<SyntheticArgs>();
+      command.add_option("--images", args->images, "Latent (irradiance) images; default: the 4 bundled Levin images");
+      command.add_option("--curves", args->curves,
+                         "Directory of camera curve tables (<Camera>.csv); default: samples/camera_curves");
+      command.add_option("--noise-vars", args->noise_vars, "Override the three noise variances (diagnostics)")->expected(3);
+      command.add_option("--cases-limit", args->cases_limit, "Run only this many cases (spread over the grid)");
+      command.add_option("--json", args->json, "Write the numbers as JSON");
+      command.add_option("--plot", args->plot, "Write the seed's Fig. 5 (estimated vs true phi) as PNGs here");
+      command.add_option("--method", args->method, "seed | default | both")->check(CLI::IsMember({"seed", "default", "both"}));
+      command.add_option("--variants", args->variants,
+                         "Extra ablation variants: seed+denoise seed+debias aware-nonoise default+true-sigma "
+                         "default-ggcm default-emor default-nm irradiance-eiv");
+      command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::PositiveNumber);
+      command.add_option("--ratio", args->ratio, "Exposure ratio r of the simulated pairs (seed: 1)")->check(CLI::PositiveNumber);
+      command.add_flag("!--no-timing", args->timing, "Skip the speed measurements");
+      command.add_flag("-q,--quiet", args->quiet, "No progress output");
+      return [args] {
+        const int previous = cv::getNumThreads();
+        cv::setNumThreads(args->threads);
+        try {
+          const int rc = runSynthetic(*args);
+          cv::setNumThreads(previous);
+          return rc;
+        } catch (...) {
+          cv::setNumThreads(previous);
+          throw;
+        }
+      };
+    });
+
+}  // namespace
+}  // namespace crfcal::app

@@ -1,0 +1,48 @@
+#pragma once
+// Unbiased level functions for a noisy sharp image (errors in variables).
+//
+// The sharp image is observed as I = Q(clip(c + n)), c the clean intensity, n ~ N(0, σ²) per pixel, Q the
+// rounding to L levels. For a convex φ, E[φ(I)] ≠ φ(c) (Jensen), so the mixture Σ_v w_p(v) φ(x_v) of a
+// noisy I is biased. This operator finds, for any function f on the level grid, the function g = R f with
+//   E[g(I) | c] = Σ_v T(c, v) g(x_v) ≈ f(c)   for every clean level c,
+// T the noise/clip/quantisation transition matrix, by Tikhonov-regularised deconvolution
+//   R = (TᵀT + λ D₂ᵀD₂)⁻¹ Tᵀ   (D₂ second differences, λ = `regularization` · trace(TᵀT)/L).
+// Then Σ_v w_p(v) g(x_v) is an unbiased estimate of (f(c) ⊗ K)(p) and, with u_p the squared masses,
+// Σ_v u_p(v) [g(x_v)² − (R f²)(x_v)] is an unbiased estimate of its variance (level_mixture.hpp).
+#include <span>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace crfcal {
+
+struct NoiseDebiasOptions {
+  int levels = 256;              // L
+  double sigma = 0;              // noise std of I, intensities in [0,1]; 0 → R = identity
+  double regularization = 1e-4;  // λ relative to trace(TᵀT)/L
+  void check() const;            // throws InvalidInput
+};
+
+class NoiseDebias {
+ public:
+  NoiseDebias() = default;
+  explicit NoiseDebias(const NoiseDebiasOptions& options);
+
+  bool identity() const { return identity_; }
+  int levels() const { return levels_; }
+  double sigma() const { return sigma_; }
+  // g = R f.
+  void apply(std::span<const double> f, std::span<double> g) const;
+  std::vector<double> apply(std::span<const double> f) const;
+  // The L×L matrix R (identity when σ = 0) and the transition matrix T (rows: clean level, cols: observed).
+  const Eigen::MatrixXd& matrix() const { return r_; }
+  const Eigen::MatrixXd& transition() const { return t_; }
+
+ private:
+  bool identity_ = true;
+  int levels_ = 0;
+  double sigma_ = 0;
+  Eigen::MatrixXd r_, t_;
+};
+
+}  // namespace crfcal

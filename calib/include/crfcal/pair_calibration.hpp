@@ -1,0 +1,69 @@
+#pragma once
+// The whole dual-image calibration of Sec. 4 on a real (handheld) pair:
+//   saturation check → registration (registration.hpp) → edge-rich tiles (tile_selection.hpp) →
+//   kernel estimation (kernel_estimation.hpp) in an approximately linear domain (the sharp image's histogram
+//   matched to the blurred one's: a monotone map that removes most of the exposure and tone difference) →
+//   φ fit per channel (crf_fitter.hpp, Eq. 21–25) → `rounds` × { kernel re-estimated in the irradiance domain
+//   φ(I), φ(B) with the current φ_G; φ refitted } with the change per round reported.
+// Pure computation: images in, curves/kernel/diagnostics out; progress through a callback.
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "crfcal/crf_fitter.hpp"
+#include "crfcal/kernel_estimation.hpp"
+#include "crfcal/registration.hpp"
+#include "crfcal/tile_selection.hpp"
+
+namespace crfcal {
+
+struct PairCalibrationOptions {
+  RegistrationOptions registration;
+  KernelEstimationOptions kernel;
+  TileSelectionOptions tiles;
+  CrfFitOptions fit;                 // initial_ratio = the EXIF ratio (footnote 4) or --ratio
+  bool register_pair = true;         // false: the pair is already aligned
+  cv::Mat given_kernel;              // non-empty: skip estimation (--kernel FILE)
+  bool rgb = true;                   // fit R, G, B (else G only; grey input is always one channel "G")
+  int rounds = 2;                    // kernel ↔ φ rounds after the first fit (Sec. 4 iterates φ and r; we add K)
+  double saturated_frame_limit = 0.6;  // more than this fraction of an image clipped: "saturated frame"
+  int max_fit_side = 2048;           // the fit sees at most this window around the best tile (speed on 24 MP)
+  std::function<void(const std::string& stage, double fraction, const std::string& detail)> progress;
+  void check() const;                // throws InvalidInput
+};
+
+struct CalibrationRound {
+  int round = 0;               // 0: intensity-domain kernel; ≥ 1: irradiance-domain kernel
+  double kernel_change = 0;    // ‖K_round − K_previous‖₂ / ‖K_previous‖₂ (0 for round 0)
+  double phi_change = 0;       // RMSE of φ_G against the previous round (0 for round 0)
+  double ratio = 1;            // fitted r of G
+  double kernel_residual = 0;  // relative gradient-domain residual of the kernel fit
+};
+
+struct PairCalibrationResult {
+  RegistrationResult registration;
+  KernelEstimate kernel;                 // final kernel (given kernels: kernel set, other fields default)
+  bool kernel_estimated = true;
+  std::vector<Tile> tiles;
+  std::vector<cv::Mat> tile_kernels;     // one per tile when more than one tile
+  KernelDisagreement disagreement;
+  std::vector<std::string> channels;     // "R","G","B" or "G"
+  std::map<std::string, CrfFitResult> fits;
+  std::vector<CalibrationRound> rounds;
+  cv::Rect fit_window;                   // region handed to the fitter (full-resolution coordinates)
+  cv::Mat gamma_map;                     // Γ = B − I ⊗ K on G inside fit_window (CV_64F)
+  cv::Mat weights;                       // CV_8U, pixels used by the G fit inside fit_window
+  std::map<std::string, double> timings; // seconds per stage
+  std::vector<std::string> warnings;
+  std::string summary() const;
+};
+
+// sharp / blurred: the two shots (grey or BGR, CV_8U or CV_16U, same depth and channels). Throws InvalidInput
+// with a one-line reason for saturated frames, a non-overlapping pair, an edgeless pair, a kernel at its size
+// limit.
+PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred, const PairCalibrationOptions& options);
+
+}  // namespace crfcal

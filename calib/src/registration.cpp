@@ -1,0 +1,234 @@
+#include "crfcal/registration.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/features2d.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+
+#include "crfcal/error.hpp"
+
+namespace crfcal {
+namespace {
+
+cv::Mat toGray8(const cv::Mat& image) {
+  cv::Mat gray = image;
+  if (image.channels() == 3) cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
+  else if (image.channels() == 4) cv::cvtColor(image, gray, cv::COLOR_BGRA2GRAY);
+  cv::Mat out;
+  switch (gray.depth()) {
+    case CV_8U: out = gray.clone(); break;
+    case CV_16U: gray.convertTo(out, CV_8U, 255.0 / 65535.0); break;
+    default: gray.convertTo(out, CV_8U, 255.0); break;  // float in [0,1]
+  }
+  return out;
+}
+
+cv::Mat scaleMatrix(double s) {
+  cv::Mat S = cv::Mat::eye(3, 3, CV_64F);
+  S.at<double>(0, 0) = s;
+  S.at<double>(1, 1) = s;
+  return S;
+}
+
+bool saneHomography(const cv::Mat& H) {
+  if (H.empty() || !cv::checkRange(H)) return false;
+  const double det = H.at<double>(0, 0) * H.at<double>(1, 1) - H.at<double>(0, 1) * H.at<double>(1, 0);
+  const double persp = std::abs(H.at<double>(2, 0)) + std::abs(H.at<double>(2, 1));
+  return det > 0.5 && det < 2.0 && persp < 2e-3;
+}
+
+double coverage(cv::Size sharp, const cv::Mat& H, cv::Size blurred) {
+  const cv::Mat mask = overlapMask(sharp, H, blurred);
+  return static_cast<double>(cv::countNonZero(mask)) / (static_cast<double>(blurred.area()));
+}
+
+}  // namespace
+
+void RegistrationOptions::check() const {
+  if (max_dimension < 64) throw InvalidInput("registration: max_dimension must be >= 64");
+  if (max_features < 50) throw InvalidInput("registration: max_features must be >= 50");
+  if (!(match_ratio > 0 && match_ratio <= 1)) throw InvalidInput("registration: match_ratio must be in (0, 1]");
+  if (!(ransac_threshold > 0)) throw InvalidInput("registration: ransac_threshold must be > 0");
+  if (min_inliers < 4) throw InvalidInput("registration: min_inliers must be >= 4");
+  if (ecc_iterations < 1 || !(ecc_epsilon > 0)) throw InvalidInput("registration: bad ECC criteria");
+  if (ecc_smoothing < 1 || ecc_smoothing % 2 == 0) throw InvalidInput("registration: ecc_smoothing must be odd");
+  if (!(min_overlap > 0 && min_overlap <= 1)) throw InvalidInput("registration: min_overlap must be in (0, 1]");
+}
+
+cv::Point2d RegistrationResult::shift() const {
+  return {homography.at<double>(0, 2), homography.at<double>(1, 2)};
+}
+
+double RegistrationResult::rotationDegrees() const {
+  return -std::atan2(homography.at<double>(1, 0), homography.at<double>(0, 0)) * 180.0 / CV_PI;  // CCW positive
+}
+
+std::string RegistrationResult::summary() const {
+  char buffer[300];
+  const cv::Point2d t = shift();
+  std::snprintf(buffer, sizeof buffer,
+                "%s: shift (%.2f, %.2f) px, rotation %.3f deg, %d/%d inliers, ECC correlation %.3f, overlap %.1f%%",
+                method.c_str(), t.x, t.y, rotationDegrees(), inliers, matches, ecc_correlation,
+                100.0 * overlap_fraction);
+  return buffer;
+}
+
+cv::Mat photometricNormalise(const cv::Mat& image) {
+  cv::Mat gray = toGray8(image), equalised;
+  cv::equalizeHist(gray, equalised);
+  return equalised;
+}
+
+cv::Mat overlapMask(cv::Size sharp_size, const cv::Mat& homography, cv::Size blurred_size, int margin) {
+  cv::Mat ones(sharp_size, CV_8U, cv::Scalar(255)), mask;
+  cv::warpPerspective(ones, mask, homography, blurred_size, cv::INTER_NEAREST, cv::BORDER_CONSTANT, cv::Scalar(0));
+  if (margin > 0) {
+    // Also exclude the blurred frame's own border.
+    cv::Mat framed = cv::Mat::zeros(blurred_size, CV_8U);
+    mask.copyTo(framed);
+    cv::rectangle(framed, cv::Rect(0, 0, blurred_size.width, blurred_size.height), cv::Scalar(0), 1);
+    cv::erode(framed, mask, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * margin + 1, 2 * margin + 1)),
+              cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(0));
+  }
+  return mask;
+}
+
+cv::Mat warpToBlurred(const cv::Mat& sharp, const cv::Mat& homography, cv::Size blurred_size) {
+  cv::Mat out;
+  cv::warpPerspective(sharp, out, homography, blurred_size, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+  return out;
+}
+
+RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, const RegistrationOptions& options) {
+  options.check();
+  if (sharp.empty() || blurred.empty()) throw InvalidInput("registration: empty image");
+  RegistrationResult result;
+  const int longest = std::max({sharp.cols, sharp.rows, blurred.cols, blurred.rows});
+  const double s = std::min(1.0, static_cast<double>(options.max_dimension) / longest);
+  result.scale = s;
+  cv::Mat a = photometricNormalise(sharp), b = photometricNormalise(blurred);
+  if (s < 1) {
+    cv::resize(a, a, cv::Size(), s, s, cv::INTER_AREA);
+    cv::resize(b, b, cv::Size(), s, s, cv::INTER_AREA);
+  }
+
+  // 1. Features + RANSAC.
+  cv::Mat H;  // working scale, sharp → blurred
+  {
+    auto akaze = cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0005f);
+    std::vector<cv::KeyPoint> ka, kb;
+    cv::Mat da, db;
+    akaze->detectAndCompute(a, cv::noArray(), ka, da);
+    akaze->detectAndCompute(b, cv::noArray(), kb, db);
+    auto keep = [&](std::vector<cv::KeyPoint>& kp, cv::Mat& d, const cv::Mat& img) {
+      if (static_cast<int>(kp.size()) > options.max_features) {
+        cv::KeyPointsFilter::retainBest(kp, options.max_features);
+        akaze->compute(img, kp, d);
+      }
+    };
+    keep(ka, da, a);
+    keep(kb, db, b);
+    result.keypoints_sharp = static_cast<int>(ka.size());
+    result.keypoints_blurred = static_cast<int>(kb.size());
+    if (ka.size() >= 8 && kb.size() >= 8) {
+      cv::BFMatcher matcher(cv::NORM_HAMMING);
+      std::vector<std::vector<cv::DMatch>> knn;
+      matcher.knnMatch(da, db, knn, 2);
+      std::vector<cv::Point2f> pa, pb;
+      for (const auto& m : knn) {
+        if (m.size() == 2 && m[0].distance < options.match_ratio * m[1].distance) {
+          pa.push_back(ka[m[0].queryIdx].pt);
+          pb.push_back(kb[m[0].trainIdx].pt);
+        }
+      }
+      result.matches = static_cast<int>(pa.size());
+      if (pa.size() >= 8) {
+        std::vector<uchar> inlier_mask;
+        cv::Mat candidate = cv::findHomography(pa, pb, cv::RANSAC, options.ransac_threshold, inlier_mask, 4000, 0.999);
+        const int inliers = candidate.empty() ? 0 : cv::countNonZero(inlier_mask);
+        if (inliers >= options.min_inliers && saneHomography(candidate)) {
+          H = candidate;
+          result.inliers = inliers;
+          result.method = "features+ransac";
+        }
+      }
+    }
+  }
+  // 2. Fallback: phase correlation (translation) on the normalised copies.
+  if (H.empty()) {
+    cv::Mat fa, fb;
+    cv::Size common(std::min(a.cols, b.cols), std::min(a.rows, b.rows));
+    a(cv::Rect(0, 0, common.width, common.height)).convertTo(fa, CV_64F);
+    b(cv::Rect(0, 0, common.width, common.height)).convertTo(fb, CV_64F);
+    cv::Mat window;
+    cv::createHanningWindow(window, common, CV_64F);
+    double response = 0;
+    const cv::Point2d t = cv::phaseCorrelate(fa, fb, window, &response);
+    H = cv::Mat::eye(3, 3, CV_64F);
+    H.at<double>(0, 2) = t.x;
+    H.at<double>(1, 2) = t.y;
+    result.method = "phase";
+  }
+  // 3. ECC refinement (template = blurred, input = sharp; the warp maps blurred → sharp coordinates).
+  const int motion = result.method == "phase" ? cv::MOTION_EUCLIDEAN : cv::MOTION_HOMOGRAPHY;
+  cv::Mat fa, fb;
+  a.convertTo(fa, CV_32F, 1.0 / 255);
+  b.convertTo(fb, CV_32F, 1.0 / 255);
+  cv::Mat W = H.inv();
+  cv::Mat warp;
+  if (motion == cv::MOTION_HOMOGRAPHY) W.convertTo(warp, CV_32F);
+  else W.rowRange(0, 2).convertTo(warp, CV_32F);
+  if (options.refine_ecc || result.method == "phase") {
+    try {
+      const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options.ecc_iterations,
+                                      options.ecc_epsilon);
+      cv::Mat refined = warp.clone();
+      result.ecc_correlation =
+          cv::findTransformECC(fb, fa, refined, motion, criteria, cv::noArray(), options.ecc_smoothing);
+      cv::Mat R = cv::Mat::eye(3, 3, CV_64F);
+      if (motion == cv::MOTION_HOMOGRAPHY) refined.convertTo(R, CV_64F);
+      else refined.convertTo(R.rowRange(0, 2), CV_64F);
+      const cv::Mat Hr = R.inv();
+      if (saneHomography(Hr)) {
+        H = Hr;
+        result.ecc_refined = true;
+        result.method += "+ecc";
+      }
+    } catch (const cv::Exception&) {
+      // ECC did not converge: keep the feature/phase estimate, judged below by its correlation.
+    }
+  }
+  if (!result.ecc_refined) {
+    // Correlation of the current alignment (smoothed, like ECC measures it).
+    cv::Mat warped, ga, gb;
+    cv::warpPerspective(fa, warped, H, fb.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0));
+    const cv::Mat mask = overlapMask(a.size(), H, b.size(), 2);
+    cv::GaussianBlur(warped, ga, cv::Size(options.ecc_smoothing, options.ecc_smoothing), 0);
+    cv::GaussianBlur(fb, gb, cv::Size(options.ecc_smoothing, options.ecc_smoothing), 0);
+    cv::Scalar ma, sa, mb, sb;
+    cv::meanStdDev(ga, ma, sa, mask);
+    cv::meanStdDev(gb, mb, sb, mask);
+    cv::Mat prod = (ga - ma[0]).mul(gb - mb[0]);
+    const double n = std::max(1, cv::countNonZero(mask));
+    cv::Mat masked;
+    prod.copyTo(masked, mask);
+    result.ecc_correlation = cv::sum(masked)[0] / n / std::max(1e-12, sa[0] * sb[0]);
+  }
+  result.homography = scaleMatrix(1.0 / s) * H * scaleMatrix(s);
+  result.overlap_fraction = coverage(sharp.size(), result.homography, blurred.size());
+  char detail[200];
+  if (result.overlap_fraction < options.min_overlap || result.ecc_correlation < options.min_correlation) {
+    std::snprintf(detail, sizeof detail,
+                  "the pair does not overlap (best alignment: %.0f%% overlap, correlation %.2f, %d feature inliers)",
+                  100.0 * result.overlap_fraction, result.ecc_correlation, result.inliers);
+    throw InvalidInput(detail);
+  }
+  return result;
+}
+
+}  // namespace crfcal

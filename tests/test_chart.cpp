@@ -1,0 +1,283 @@
+// ColorChecker calibration (crfcal chart) and the bundled real camera curves (crfcal curves middlebury).
+#include <cmath>
+#include <fstream>
+#include <random>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "crfcal/chart_calibration.hpp"
+#include "crfcal/colorchecker.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/response_curve.hpp"
+#include "crfcal/io/chart_io.hpp"
+#include "crfcal/io/report.hpp"
+#include "crfcal/io/response_io.hpp"
+#include "test_support.hpp"
+
+namespace crfcal {
+namespace {
+
+namespace fs = std::filesystem;
+
+const char* kBundledCamera = "CanonEOS1DsMarkII";
+
+// RMSE of a − (best factor)·b over the samples with x in [lo, hi] (shape error, free of the φ(1) = 1 normalisation).
+double scaledRmse(const std::vector<double>& a, const std::vector<double>& b, double lo, double hi) {
+  double num = 0, den = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const double x = double(i) / double(a.size() - 1);
+    if (x >= lo && x <= hi) num += a[i] * b[i], den += b[i] * b[i];
+  }
+  const double f = num / den;
+  double sum = 0;
+  int n = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const double x = double(i) / double(a.size() - 1);
+    if (x >= lo && x <= hi) sum += std::pow(a[i] - f * b[i], 2), ++n;
+  }
+  return std::sqrt(sum / n);
+}
+
+// A rectified 390×260 chart (BGR 8 bit) whose patch p has the given R,G,B values in [0,1].
+cv::Mat syntheticChart(const std::vector<std::array<double, 3>>& rgb) {
+  cv::Mat chart(260, 390, CV_8UC3);
+  for (int p = 0; p < chart::kPatches; ++p) {
+    const auto& v = rgb[static_cast<size_t>(p)];
+    const cv::Rect cell((p % 6) * 65, (p / 6) * 65, 65, 65);
+    chart(cell).setTo(cv::Scalar(std::round(255 * v[2]), std::round(255 * v[1]), std::round(255 * v[0])));
+  }
+  return chart;
+}
+
+std::vector<ChartShot> bundledShots(bool with_raw) {
+  std::vector<ChartShot> shots;
+  for (const auto& shot : io::listMiddleburyShots(test::samples() / "middlebury" / kBundledCamera)) {
+    ChartShot s;
+    s.name = shot.name;
+    s.measured = chart::sampleRectified(io::loadChart(shot.jpg, io::ChartLayout::Rectified).rectified);
+    if (with_raw) s.raw = chart::sampleRectified(io::loadChart(shot.raw, io::ChartLayout::Rectified).rectified);
+    shots.push_back(std::move(s));
+  }
+  return shots;
+}
+
+TEST(CameraCurve, BundledTablesAreValidMonotoneCurves) {
+  const fs::path dir = test::samples() / "camera_curves";
+  int count = 0;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    if (entry.path().extension() != ".csv") continue;
+    ++count;
+    const std::vector<double> phi = io::readCurveTable(entry.path());
+    ASSERT_EQ(phi.size(), size_t(kCurveSamples)) << entry.path();
+    const ModelValidity validity = checkValidity(TableModel{phi}, 4096, 1e-7);
+    EXPECT_TRUE(validity.valid) << entry.path() << ": " << validity.reason;
+    // A real camera's inverse response is convex-ish: well below the identity in the mid-tones.
+    EXPECT_LT(phi[511], 0.35) << entry.path();
+    EXPECT_GT(phi[511], 0.03) << entry.path();
+  }
+  EXPECT_EQ(count, 10);
+  EXPECT_TRUE(fs::exists(dir / "PROVENANCE.md"));
+}
+
+TEST(CameraCurve, BundledShotsReproduceTheBundledCurve) {
+  // The bundled subset (4 of 8 shots) of one camera, RAW reference, grey patches: the same curve as the table
+  // made from all 8 shots, within the covered range.
+  ChartCalibrationOptions options;
+  options.use_raw = true;
+  options.raw_neutral_only = true;
+  options.channels = {1};
+  const ChartCalibrationResult result = calibrateChart(bundledShots(true), options);
+  ASSERT_EQ(result.channels.size(), 1u);
+  const ChartChannelResult& g = result.channels.front();
+  EXPECT_LT(g.fit.rmse, 0.012);
+  const std::vector<double> table =
+      io::readCurveTable(test::samples() / "camera_curves" / (std::string(kBundledCamera) + ".csv"));
+  const auto [lo, hi] = g.fit.covered_range;
+  EXPECT_LT(lo, 0.1);
+  EXPECT_GT(hi, 0.85);
+  EXPECT_LT(scaledRmse(table, g.fit.inverse, lo, hi), 0.01);
+  EXPECT_LT(curveRmse(table, g.fit.inverse), 0.05);
+}
+
+TEST(Chart, ReflectanceCalibrationMatchesRawTruthOnRealCamera) {
+  // JPEG shots against the published grey reflectances (free exposure per shot) vs the RAW→JPEG truth.
+  const std::vector<ChartShot> shots = bundledShots(true);
+  ChartCalibrationOptions truth_options;
+  truth_options.use_raw = true;
+  truth_options.raw_neutral_only = true;
+  const ChartCalibrationResult truth = calibrateChart(shots, truth_options);
+  ChartCalibrationOptions options;  // neutral reference, per-shot scales
+  const ChartCalibrationResult fit = calibrateChart(shots, options);
+  ASSERT_EQ(fit.channels.size(), 3u);
+  for (size_t c = 0; c < 3; ++c) {
+    const auto& f = fit.channels[c];
+    EXPECT_EQ(f.fit.scales.size(), shots.size());
+    EXPECT_TRUE(checkValidity(TableModel{f.fit.inverse}, 4096, 1e-7).valid);
+    EXPECT_LT(scaledRmse(truth.channels[c].fit.inverse, f.fit.inverse, f.fit.covered_range.first,
+                         f.fit.covered_range.second),
+              0.02)
+        << channelName(int(c));
+    EXPECT_LT(f.ggcm_rmse, 0.03) << "GGCM conversion of channel " << channelName(int(c));
+  }
+}
+
+TEST(Chart, SamplerRejectsClippedAndNonUniformPatches) {
+  std::vector<std::array<double, 3>> rgb(chart::kPatches);
+  for (int p = 0; p < chart::kPatches; ++p) rgb[static_cast<size_t>(p)] = {0.2 + 0.02 * p, 0.3, 0.25};
+  cv::Mat image = syntheticChart(rgb);
+  // Patch 3: clipped in the red channel. Patch 7: strong horizontal gradient. Patch 12: heavy noise.
+  image(cv::Rect(3 * 65, 0, 65, 65)).setTo(cv::Scalar(60, 80, 255));
+  for (int x = 0; x < 65; ++x) image(cv::Rect(1 * 65 + x, 65, 1, 65)).setTo(cv::Scalar(40, 60 + x * 2, 90));
+  std::mt19937 rng(3);
+  std::normal_distribution<double> noise(0, 25);
+  for (int y = 130; y < 195; ++y)
+    for (int x = 0; x < 65; ++x)
+      image.at<cv::Vec3b>(y, x) = cv::Vec3b(cv::saturate_cast<uchar>(100 + noise(rng)),
+                                            cv::saturate_cast<uchar>(100 + noise(rng)),
+                                            cv::saturate_cast<uchar>(100 + noise(rng)));
+  const std::vector<chart::PatchStats> stats = chart::sampleRectified(image);
+  ASSERT_EQ(stats.size(), size_t(chart::kPatches));
+  for (const auto& s : stats) {
+    if (s.patch == 3) {
+      EXPECT_TRUE(s.clipped && s.clipped_high);
+      EXPECT_EQ(s.rejection(), "clipped");
+    } else if (s.patch == 7 || s.patch == 12) {
+      EXPECT_TRUE(s.non_uniform) << s.patch;
+    } else {
+      EXPECT_TRUE(s.usable()) << s.patch << " " << s.rejection();
+      EXPECT_NEAR(s.median[0], std::round(255 * (0.2 + 0.02 * s.patch)) / 255, 1e-9);
+      EXPECT_NEAR(s.median[1], std::round(255 * 0.3) / 255, 1e-9);
+    }
+  }
+}
+
+TEST(Chart, RecoversPerShotExposureScalesOnSyntheticCharts) {
+  // Charts rendered with a known response from the published luminances at three unknown exposures.
+  const ResponseCurve truth(GgcmModel{{0.42, 0.08, -0.05, 0.02, 0.0}});  // a camera-like convex φ
+  const std::vector<double> exposures{0.35, 0.7, 1.05};
+  std::vector<ChartShot> shots;
+  for (double e : exposures) {
+    std::vector<std::array<double, 3>> rgb(chart::kPatches);
+    for (int p = 0; p < chart::kPatches; ++p) {
+      const double v = truth.forward(std::min(1.0, e * chart::reference()[static_cast<size_t>(p)].Y));
+      rgb[static_cast<size_t>(p)] = {v, v, v};
+    }
+    ChartShot shot;
+    shot.name = "e" + std::to_string(e);
+    shot.measured = chart::sampleRectified(syntheticChart(rgb));
+    shots.push_back(std::move(shot));
+  }
+  ChartCalibrationOptions options;
+  options.reference = chart::ReferenceSet::Luminance;
+  options.channels = {1};
+  const ChartCalibrationResult result = calibrateChart(shots, options);
+  const auto& g = result.channels.front();
+  ASSERT_EQ(g.fit.scales.size(), 3u);
+  // y = s·φ(x) with y = Y and φ(x) = e·Y ⇒ s_g = 1/e_g: ratios recovered.
+  for (size_t i = 1; i < 3; ++i)
+    EXPECT_NEAR(g.fit.scales[0] / g.fit.scales[i], exposures[i] / exposures[0], 0.03 * exposures[i] / exposures[0]);
+  EXPECT_LT(curveRmse(truth.sample(kCurveSamples), g.fit.inverse), 0.01);
+  EXPECT_LT(g.fit.rmse, 0.005);
+}
+
+TEST(Chart, CensoredSamplesBoundTheScale) {
+  // Data only up to x = 0.6 on φ = x²; an upper bound s·φ(0.99) ≤ 1.0 at the clipped end keeps the scale honest.
+  std::vector<ScaledObservation> obs;
+  for (int i = 1; i <= 30; ++i) {
+    const double x = 0.02 * i;
+    obs.push_back({ScaledObservation::Kind::Exact, x, 2.0 * x * x, 0, i % 5, 1});
+  }
+  obs.push_back({ScaledObservation::Kind::AtMost, 0.99, 2.0, 0, 0, 1});
+  obs.push_back({ScaledObservation::Kind::AtLeast, 0.99, 1.9, 0, 1, 1});
+  const ScaledFitResult fit = fitScaledInverse(obs);
+  EXPECT_EQ(fit.censored, 2);
+  EXPECT_NEAR(fit.scales[0], 2.0, 0.15);
+  EXPECT_LT(fit.rmse, 0.01);
+}
+
+TEST(Chart, RectifyWithCornersUndoesARotatedPerspective) {
+  std::vector<std::array<double, 3>> rgb(chart::kPatches);
+  for (int p = 0; p < chart::kPatches; ++p) rgb[static_cast<size_t>(p)] = {0.1 + 0.03 * p, 0.8 - 0.025 * p, 0.5};
+  const cv::Mat flat = syntheticChart(rgb);
+  // Place it upside down (rotated 180°) with some perspective into a larger photo.
+  const chart::ChartCorners where{cv::Point2f(900, 640), cv::Point2f(120, 600), cv::Point2f(160, 90),
+                                  cv::Point2f(880, 70)};
+  const std::array<cv::Point2f, 4> from{cv::Point2f(0, 0), cv::Point2f(390, 0), cv::Point2f(390, 260),
+                                        cv::Point2f(0, 260)};
+  cv::Mat photo;
+  cv::warpPerspective(flat, photo, cv::getPerspectiveTransform(from.data(), where.data()), cv::Size(1000, 700),
+                      cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(20, 20, 20));
+  const std::vector<chart::PatchStats> stats = chart::sampleRectified(chart::rectify(photo, where));
+  for (const auto& s : stats) {
+    EXPECT_TRUE(s.usable()) << s.patch;
+    EXPECT_NEAR(s.median[0], rgb[static_cast<size_t>(s.patch)][0], 2.0 / 255) << s.patch;
+    EXPECT_NEAR(s.median[1], rgb[static_cast<size_t>(s.patch)][1], 2.0 / 255) << s.patch;
+  }
+}
+
+TEST(Chart, ParsesCornersAndRejectsBadInput) {
+  const chart::ChartCorners c = io::parseCorners("1,2,3,4,5,6,7,8");
+  EXPECT_FLOAT_EQ(c[2].x, 5);
+  EXPECT_FLOAT_EQ(c[3].y, 8);
+  EXPECT_THROW(io::parseCorners("1,2,3"), InvalidInput);
+  EXPECT_THROW(io::parseCorners("1,2,3,4,5,6,7,x"), InvalidInput);
+  EXPECT_THROW(chart::parseReferenceSet("xyz"), InvalidInput);
+  std::vector<ScaledObservation> bad{{ScaledObservation::Kind::Exact, 0.5, -1, 0, 0, 1},
+                                     {ScaledObservation::Kind::Exact, 0.6, 1, 0, 1, 1},
+                                     {ScaledObservation::Kind::Exact, 0.7, 1, 0, 2, 1}};
+  EXPECT_THROW(fitScaledInverse(bad), InvalidInput);
+}
+
+TEST(Chart, CommandWritesReportWithThreeChannelsAndGgcmModels) {
+  test::TempDir dir;
+  const fs::path cam = test::samples() / "middlebury" / kBundledCamera;
+  std::string images, raws;
+  for (const auto& shot : io::listMiddleburyShots(cam)) {
+    images += " '" + shot.jpg.string() + "'";
+    raws += " '" + shot.raw.string() + "'";
+  }
+  const auto truth = test::run(test::crfcalBinary().string() + " chart" + images + " --raw" + raws + " -q -o '" +
+                               (dir / "truth").string() + "'");
+  ASSERT_EQ(truth.exit_code, 0) << truth.output;
+  const auto run = test::run(test::crfcalBinary().string() + " chart" + images + " -q --truth '" +
+                             (dir / "truth" / "report.json").string() + "' -o '" + (dir / "out").string() + "'");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const io::CalibrationReport report = io::readReport(dir / "out" / "report.json");
+  EXPECT_EQ(report.command, "chart");
+  for (const char* ch : {"R", "G", "B"}) {
+    ASSERT_TRUE(report.inverse_crf.count(ch)) << ch;
+    EXPECT_EQ(report.inverse_crf.at(ch).size(), size_t(kCurveSamples));
+    ASSERT_TRUE(report.models.count(ch));
+    EXPECT_EQ(modelKind(report.models.at(ch)), "ggcm");
+  }
+  EXPECT_TRUE(fs::exists(dir / "out" / "chart_fit.png"));
+  std::ifstream in(dir / "out" / "report.json");
+  const nlohmann::json json = nlohmann::json::parse(in);
+  EXPECT_FALSE(json.at("patch_residuals").empty());
+  EXPECT_LT(json.at("truth").at("phi_error").at("G").at("rmse_covered_scale_aligned").get<double>(), 0.02);
+  // Errors are one line with the reason.
+  const auto bad = test::run(test::crfcalBinary().string() + " chart" + images + " --raw '" +
+                             (cam / "wb1i1e1-raw.png").string() + "' -o '" + (dir / "bad").string() + "'");
+  EXPECT_EQ(bad.exit_code, 1) << bad.output;
+  EXPECT_FALSE(fs::exists(dir / "bad"));
+}
+
+TEST(Chart, DetectsTheChartInARealPhotoWithMcc) {
+  const fs::path shared = test::sharedData();
+  const fs::path photo = shared / "colorchecker" / "photos_mindvision" / "d65_colorchecker.jpg";
+  if (shared.empty() || !fs::exists(photo)) GTEST_SKIP() << "../shared/data/colorchecker not available";
+  const io::LoadedChart loaded = io::loadChart(photo, io::ChartLayout::Detect);
+  EXPECT_EQ(loaded.how, "mcc");
+  const std::vector<chart::PatchStats> stats = chart::sampleRectified(loaded.rectified);
+  // Upside-down chart: mcc must still give chart order — the grey row decreases from white to black.
+  for (int p = 19; p < 24; ++p)
+    EXPECT_LT(stats[static_cast<size_t>(p)].median[1], stats[static_cast<size_t>(p) - 1].median[1]) << p;
+  int usable = 0;
+  for (const auto& s : stats) usable += s.usable();
+  EXPECT_GE(usable, 20);
+}
+
+}  // namespace
+}  // namespace crfcal
