@@ -107,6 +107,16 @@ int runCalibrate(const CalibrateArgs& args) {
   }
   report.ratio_fitted = result.fits.at("G").ratio;
   report.warnings = result.warnings;
+  report.effects = nlohmann::json::array();
+  for (const auto& e : result.effects.entries)
+    report.effects.push_back({{"name", e.name}, {"detected", e.detected}, {"tested", e.tested},
+                              {"statistic", e.statistic}, {"threshold", e.threshold}, {"gain", e.gain},
+                              {"gain_threshold", e.gain_threshold}, {"parameters", e.parameters}, {"detail", e.detail}});
+  for (const auto& name : result.effects.detected()) report.warnings.push_back("effect detected: " + name);
+  if (!result.base_fits.empty()) {
+    report.extra["phi_base_model"] = nlohmann::json::object();
+    for (const auto& [name, fit] : result.base_fits) report.extra["phi_base_model"][name] = fit.inverse_crf;
+  }
   if (pair.swapped) report.warnings.push_back("the first image is the blurred one (" + pair.blurred_reason + "); swapped");
   if (pair.sharp.linear)
     report.warnings.push_back("RAW pair: the data are linear (phi should be the identity; the fit checks it)");

@@ -170,8 +170,7 @@ TEST(CrfFit, RejectsSizeMismatchAndAllSaturated) {
   }
 }
 
-// TODO(issue 3): re-enable once the noise handling is fixed (work in progress).
-TEST(CrfFit, DISABLED_NoiseHandlingReducesBiasOnNoisySharpImage) {
+TEST(CrfFit, NoiseHandlingReducesBiasOnNoisySharpImage) {
   SimulationOptions sim;
   sim.noise_variance = 0.005;
   sim.seed = 5;

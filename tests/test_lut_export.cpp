@@ -172,45 +172,42 @@ TEST(LutExport, CubeDomainRangeThroughOpenColorIO) {
   EXPECT_NEAR(outside[1][1], curves.rgb[1].inverse(0.6), 1e-6);
 }
 
-TEST(LutExport, Spi1dThroughOpenColorIO) {
-  test::TempDir dir;
+// φ and ψ at the default size read back by OpenColorIO, then a table over a sub-range.
+void expectBothDirectionsThroughOcio(LutFormat format, const test::TempDir& dir, const LutExportOptions& ranged) {
   const CalibrationReport report = rgbReport();
+  const std::string extension = format == LutFormat::Spi1d ? ".spi1d" : ".clf";
   for (auto direction : {LutDirection::Inverse, LutDirection::Forward}) {
     LutExportOptions options;
-    options.format = LutFormat::Spi1d;
+    options.format = format;
     options.direction = direction;
     LutExportResult result;
-    const auto check = checkWithOcio(report, options, dir / (direction == LutDirection::Inverse ? "phi.spi1d" : "psi.spi1d"), &result);
+    const auto check = checkWithOcio(report, options,
+                                     dir / ((direction == LutDirection::Inverse ? "phi" : "psi") + extension), &result);
     EXPECT_LT(check.vs_lut, kFloatLutTolerance);
     EXPECT_LT(check.vs_curve, result.max_error + kFloatLutTolerance);
   }
+  EXPECT_LT(checkWithOcio(report, ranged, dir / ("range" + extension)).vs_lut, kFloatLutTolerance);
+}
+
+TEST(LutExport, Spi1dThroughOpenColorIO) {
+  test::TempDir dir;
   LutExportOptions ranged;
   ranged.format = LutFormat::Spi1d;
   ranged.size = 777;
   ranged.range_min = 0.25;
   ranged.range_max = 0.75;
-  EXPECT_LT(checkWithOcio(report, ranged, dir / "range.spi1d").vs_lut, kFloatLutTolerance);
+  expectBothDirectionsThroughOcio(LutFormat::Spi1d, dir, ranged);
 }
 
 TEST(LutExport, ClfThroughOpenColorIO) {
   test::TempDir dir;
-  const CalibrationReport report = rgbReport();
-  for (auto direction : {LutDirection::Inverse, LutDirection::Forward}) {
-    LutExportOptions options;
-    options.format = LutFormat::Clf;
-    options.direction = direction;
-    LutExportResult result;
-    const auto check = checkWithOcio(report, options, dir / (direction == LutDirection::Inverse ? "phi.clf" : "psi.clf"), &result);
-    EXPECT_LT(check.vs_lut, kFloatLutTolerance);
-    EXPECT_LT(check.vs_curve, result.max_error + kFloatLutTolerance);
-  }
   LutExportOptions ranged;
   ranged.format = LutFormat::Clf;
   ranged.size = 512;
   ranged.range_min = 0.0;
   ranged.range_max = 0.5;
   ranged.title = "a <title> & \"quotes\"";
-  EXPECT_LT(checkWithOcio(report, ranged, dir / "range.clf").vs_lut, kFloatLutTolerance);
+  expectBothDirectionsThroughOcio(LutFormat::Clf, dir, ranged);
 }
 
 TEST(LutExport, GreyReportIsReplicatedAndChannelOptionSelects) {

@@ -4,12 +4,13 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <numeric>
-#include <random>
 #include <sstream>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
+#include <Eigen/QR>
 #include <nlopt.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -35,17 +36,14 @@ const char* toString(CrfModelChoice value) {
 const char* toString(CrfObjective value) {
   switch (value) {
     case CrfObjective::seed_intensity: return "seed_intensity";
-    case CrfObjective::noise_aware_intensity: return "noise_aware_intensity";
-    case CrfObjective::instrumental: return "instrumental";
-    case CrfObjective::corrected_irradiance: return "corrected_irradiance";
+    case CrfObjective::moments: return "moments";
   }
   return "?";
 }
 const char* toString(CrfOptimizer value) {
   switch (value) {
     case CrfOptimizer::nelder_mead: return "nelder_mead";
-    case CrfOptimizer::lbfgs: return "lbfgs";
-    case CrfOptimizer::bobyqa: return "bobyqa";
+    case CrfOptimizer::levenberg_marquardt: return "levenberg_marquardt";
   }
   return "?";
 }
@@ -65,8 +63,8 @@ CrfFitOptions CrfFitOptions::seed() {
   o.optimizer = CrfOptimizer::nelder_mead;
   o.noise = NoiseHandling::none;
   o.multi_starts = 1;
-  o.max_pixels = 0;
-  o.max_evaluations = 1000;
+  o.max_pixels = 6000;  // deterministic subsample keeps one fit near a second (Nelder–Mead needs ~10³ evaluations)
+  o.max_evaluations = 600;
   o.ratio_rounds = 3;
   return o;
 }
@@ -78,10 +76,14 @@ void CrfFitOptions::check() const {
   if (!(initial_ratio > 0) || !std::isfinite(initial_ratio)) throw InvalidInput("fit options: initial_ratio must be positive");
   if (multi_starts < 1) throw InvalidInput("fit options: multi_starts must be at least 1");
   if (!(noise_sigma < 1)) throw InvalidInput("fit options: noise_sigma must be < 1");
+  for (double s : noise_sigma_per_level)
+    if (!(s >= 0 && s < 1)) throw InvalidInput("fit options: noise_sigma_per_level entries must be in [0, 1)");
   if (!(debias_regularization > 0)) throw InvalidInput("fit options: debias_regularization must be positive");
   if (!(edge_threshold >= 0)) throw InvalidInput("fit options: edge_threshold must be non-negative");
+  if (level_bins < 4 || level_bins > 1024) throw InvalidInput("fit options: level_bins must be in [4, 1024]");
+  if (position_bins < 1 || position_bins > 16) throw InvalidInput("fit options: position_bins must be in [1, 16]");
   if (!(saturation_high > saturation_low)) throw InvalidInput("fit options: saturation_high must exceed saturation_low");
-  if (irls_rounds < 1 || ratio_rounds < 1) throw InvalidInput("fit options: irls_rounds and ratio_rounds must be >= 1");
+  if (ratio_rounds < 1) throw InvalidInput("fit options: ratio_rounds must be >= 1");
   if (max_evaluations < 10) throw InvalidInput("fit options: max_evaluations must be at least 10");
   if (min_pixels < 1) throw InvalidInput("fit options: min_pixels must be positive");
   if (max_pixels < 0) throw InvalidInput("fit options: max_pixels must be >= 0");
@@ -102,8 +104,8 @@ std::string CrfFitResult::summary() const {
     << pixels.saturated << ", low weight " << pixels.low_weight << ", subsampled " << pixels.subsampled << ")\n";
   s.precision(4);
   s << "noise sigma of I: " << noise_sigma << (noise_sigma_estimated ? " (estimated)" : " (given)") << "; "
-    << toString(objective) << ", " << toString(optimizer) << ", " << levels << " levels, " << mixture_nonzeros
-    << " mixture non-zeros\n";
+    << toString(objective) << ", " << toString(optimizer) << ", " << levels << " levels, " << moment_bins
+    << " moment bins, " << mixture_nonzeros << " mixture non-zeros\n";
   s << "time: prepare " << timings.prepare_s << " s, mixtures " << timings.mixture_s << " s, optimise "
     << timings.optimise_s << " s, total " << timings.total_s << " s";
   return s.str();
@@ -115,9 +117,18 @@ using Clock = std::chrono::steady_clock;
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 constexpr int kGrid = 1024;  // validity grid (the EMoR nodes)
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+bool isValid(const ResponseModel& model) { return static_cast<bool>(checkValidity(model, 4096, 1e-6)); }
+
+bool monotone(const std::vector<double>& f) {
+  for (std::size_t i = 1; i < f.size(); ++i)
+    if (f[i] < f[i - 1]) return false;
+  return true;
+}
 
 // ---------------------------------------------------------------------------------------------------------
-// Curve parameterisations: values on the level grid (+ Jacobian) and a smooth monotonicity penalty.
+// Curve parameterisations: values on a grid (+ Jacobian).
 class Curve {
  public:
   enum Kind { kGgcm, kEmor };
@@ -146,34 +157,13 @@ class Curve {
   bool values(const double* x, std::vector<double>& f, std::vector<double>* jac) const {
     return sample(x, levels_, kind_ == kEmor ? &basis_levels_ : nullptr, f, jac);
   }
-  // Quadratic penalty on decreasing steps over the 1024-node grid, with its gradient (added to `grad`).
-  double penalty(const double* x, double* grad) const {
-    std::vector<double> f, jac;
-    if (!sample(x, kGrid, kind_ == kEmor ? &basis_grid_ : nullptr, f, grad ? &jac : nullptr)) return kInfeasible;
-    double pen = 0;
-    for (int i = 0; i + 1 < kGrid; ++i) {
-      const double d = f[i] - f[i + 1] + 1e-7;  // want f[i+1] ≥ f[i] + 1e-7
-      if (d <= 0) continue;
-      pen += d * d;
-      if (grad)
-        for (int j = 0; j < dims_; ++j) grad[j] += kPenalty * 2 * d * (jac[j * kGrid + i] - jac[j * kGrid + i + 1]);
-    }
-    return kPenalty * pen;
+  bool gridValues(const double* x, std::vector<double>& f, std::vector<double>* jac) const {
+    return sample(x, kGrid, kind_ == kEmor ? &basis_grid_ : nullptr, f, jac);
   }
   ResponseModel model(const std::vector<double>& x) const {
     if (kind_ == kGgcm) return GgcmModel{x};
     return EmorModel{x};
   }
-  std::vector<double> start(const ResponseModel& model) const {
-    if (const auto* g = std::get_if<GgcmModel>(&model)) return g->alpha;
-    if (const auto* e = std::get_if<EmorModel>(&model)) return e->coefficients;
-    return std::vector<double>(dims_, 0.0);
-  }
-  // EMoR: f = b0 + B c on the levels.
-  const double* emorLevels(int k) const { return basis_levels_.data() + static_cast<std::size_t>(k) * levels_; }
-
-  static constexpr double kInfeasible = 1e6;
-  static constexpr double kPenalty = 1e6;
 
  private:
   bool sample(const double* x, int n, const std::vector<double>* basis, std::vector<double>& f,
@@ -213,31 +203,26 @@ class Curve {
 };
 
 // ---------------------------------------------------------------------------------------------------------
-// NLopt wrapper: keeps the best point seen (NLopt may stop with roundoff errors after progress).
+// Nelder–Mead through NLopt, keeping the best point seen.
 struct Minimum {
   std::vector<double> x;
-  double value = std::numeric_limits<double>::infinity();
+  double value = kInf;
   int evaluations = 0;
 };
 
-using Objective = std::function<double(const std::vector<double>& x, std::vector<double>* grad)>;
-
-Minimum minimise(CrfOptimizer optimizer, const std::vector<double>& x0, const Objective& objective, int max_evaluations,
-                 double step) {
-  nlopt::algorithm algorithm = nlopt::LN_NELDERMEAD;
-  if (optimizer == CrfOptimizer::lbfgs) algorithm = nlopt::LD_LBFGS;
-  if (optimizer == CrfOptimizer::bobyqa) algorithm = nlopt::LN_BOBYQA;
+Minimum nelderMead(const std::vector<double>& x0, const std::function<double(const std::vector<double>&)>& objective,
+                   int max_evaluations, double step, double ftol = 1e-10) {
   const unsigned n = static_cast<unsigned>(x0.size());
-  nlopt::opt opt(algorithm, n);
+  nlopt::opt opt(nlopt::LN_NELDERMEAD, n);
   struct State {
-    const Objective* f;
+    const std::function<double(const std::vector<double>&)>* f;
     Minimum best;
   } state{&objective, {}};
   opt.set_min_objective(
-      [](const std::vector<double>& x, std::vector<double>& grad, void* data) -> double {
+      [](const std::vector<double>& x, std::vector<double>&, void* data) -> double {
         auto* s = static_cast<State*>(data);
         ++s->best.evaluations;
-        const double value = (*s->f)(x, grad.empty() ? nullptr : &grad);
+        const double value = (*s->f)(x);
         if (value < s->best.value) {
           s->best.value = value;
           s->best.x = x;
@@ -246,10 +231,9 @@ Minimum minimise(CrfOptimizer optimizer, const std::vector<double>& x0, const Ob
       },
       &state);
   opt.set_maxeval(max_evaluations);
-  opt.set_ftol_rel(1e-12);
-  opt.set_xtol_rel(1e-10);
-  if (algorithm != nlopt::LD_LBFGS) opt.set_initial_step(std::vector<double>(n, step));
-  if (algorithm == nlopt::LD_LBFGS) opt.set_vector_storage(10);
+  opt.set_ftol_rel(ftol);
+  opt.set_xtol_rel(1e-9);
+  opt.set_initial_step(std::vector<double>(n, step));
   std::vector<double> x = x0;
   double value = 0;
   try {
@@ -259,29 +243,79 @@ Minimum minimise(CrfOptimizer optimizer, const std::vector<double>& x0, const Ob
   }
   if (state.best.x.empty()) {
     state.best.x = x0;
-    state.best.value = objective(x0, nullptr);
+    state.best.value = objective(x0);
   }
   return state.best;
+}
+
+// Levenberg–Marquardt on a residual vector. `residuals(x, r, jac)` returns false outside the domain.
+using ResidualFn = std::function<bool(const Eigen::VectorXd& x, Eigen::VectorXd& r, Eigen::MatrixXd* jac)>;
+struct LmResult {
+  Eigen::VectorXd x;
+  double cost = kInf;
+  int iterations = 0;
+  int evaluations = 0;
+};
+LmResult levenbergMarquardt(const Eigen::VectorXd& x0, const ResidualFn& residuals, int max_iterations) {
+  LmResult out;
+  out.x = x0;
+  Eigen::VectorXd r;
+  Eigen::MatrixXd jac;
+  ++out.evaluations;
+  if (!residuals(out.x, r, &jac)) return out;
+  out.cost = r.squaredNorm();
+  double lambda = 1e-3;
+  const int n = static_cast<int>(x0.size());
+  for (int it = 0; it < max_iterations; ++it) {
+    ++out.iterations;
+    const Eigen::MatrixXd jtj = jac.transpose() * jac;
+    const Eigen::VectorXd g = jac.transpose() * r;
+    bool improved = false;
+    for (int tries = 0; tries < 12; ++tries) {
+      Eigen::MatrixXd a = jtj;
+      for (int i = 0; i < n; ++i) a(i, i) += lambda * std::max(jtj(i, i), 1e-12);
+      const Eigen::VectorXd step = a.ldlt().solve(-g);
+      if (!step.allFinite()) {
+        lambda *= 10;
+        continue;
+      }
+      const Eigen::VectorXd xn = out.x + step;
+      Eigen::VectorXd rn;
+      ++out.evaluations;
+      if (residuals(xn, rn, nullptr)) {
+        const double cn = rn.squaredNorm();
+        if (cn < out.cost) {
+          const double gain = (out.cost - cn) / std::max(out.cost, 1e-300);
+          out.x = xn;
+          out.cost = cn;
+          lambda = std::max(lambda / 5, 1e-9);
+          improved = true;
+          ++out.evaluations;
+          residuals(out.x, r, &jac);
+          if (gain < 1e-12 || step.norm() < 1e-12 * (1 + out.x.norm())) return out;
+          break;
+        }
+      }
+      lambda *= 8;
+    }
+    if (!improved) break;
+  }
+  return out;
 }
 
 // ---------------------------------------------------------------------------------------------------------
 struct Prepared {
   int levels = 256;
+  cv::Mat kernel;                  // normalised CV_64F
+  cv::Mat sharp_unit, blurred_unit;
   LevelImage sharp, blurred;
-  cv::Mat blurred_unit;
   std::vector<cv::Point> pixels;
   std::vector<double> seed_weight;  // W_p (seed objective)
-  std::vector<int> fold;            // 0/1, 16×16 checkerboard tiles
-  LevelMixture mixture;
-  NoiseDebias debias;
-  std::vector<double> b_value;      // B_p in [0,1]
-  std::vector<int> b_lo;            // B level (lo) and frac
-  std::vector<double> b_frac;
 };
 
-double pixelValue(const LevelImage& image, int y, int x) {
-  const double lo = image.lo.at<std::uint16_t>(y, x);
-  const double t = image.frac.empty() ? 0.0 : image.frac.at<float>(y, x);
+double pixelValue(const LevelImage& image, cv::Point p) {
+  const double lo = image.lo.at<std::uint16_t>(p);
+  const double t = image.frac.empty() ? 0.0 : image.frac.at<float>(p);
   return (lo + t) / (image.levels - 1);
 }
 
@@ -297,751 +331,699 @@ double inverseOf(const std::vector<double>& f, double y) {
   return (v + t) / (n - 1);
 }
 
-bool monotone(const std::vector<double>& f) {
-  for (std::size_t i = 1; i < f.size(); ++i)
-    if (f[i] < f[i - 1]) return false;
-  return true;
-}
-
-double phiAtB(const Prepared& p, const std::vector<double>& f, int i) {
-  const int lo = p.b_lo[i];
-  const double t = p.b_frac[i];
-  return t > 0 ? (1 - t) * f[lo] + t * f[lo + 1] : f[lo];
+std::vector<double> levelValues(const ResponseModel& model, int L) {
+  std::vector<double> f(L);
+  for (int v = 0; v < L; ++v) f[v] = evaluateInverse(model, double(v) / (L - 1));
+  return f;
 }
 
 // ---------------------------------------------------------------------------------------------------------
-// Seed objective (Eq. 22): Σ W² (ψ(r · m_p) − B_p)², m_p = Σ w_p(v) g(x_v), g = f or R f.
-struct SeedObjective {
-  const Prepared* prep;
-  const Curve* curve;
-  bool debias = false;
-  double ratio = 1;
-  double weight_sum = 1;
-  mutable std::vector<double> f, g, m;
-
-  bool variance_correction = false;  // second-order E[ψ(m + e)] ≈ ψ(m) + ½ ψ''(m) Var(e)
-  mutable std::vector<double> h, v, f2;
-
-  double energy(const std::vector<double>& x) const {
-    if (!curve->values(x.data(), f, nullptr)) return Curve::kInfeasible;
-    if (!monotone(f)) return Curve::kInfeasible * 0.5 + curve->penalty(x.data(), nullptr);
-    g = debias ? prep->debias.apply(f) : f;
-    m.resize(prep->pixels.size());
-    prep->mixture.mix(g, m);
-    const int L = static_cast<int>(f.size());
-    if (variance_correction) {
-      f2.resize(L);
-      for (int i = 0; i < L; ++i) f2[i] = f[i] * f[i];
-      h = prep->debias.apply(f2);
-      for (int i = 0; i < L; ++i) h[i] = g[i] * g[i] - h[i];
-      v.resize(m.size());
-      prep->mixture.mixSquared(h, v);
-    }
-    double sum = 0;
-    for (std::size_t i = 0; i < m.size(); ++i) {
-      const double w = prep->seed_weight[i];
-      const double y = std::min(1.0, ratio * m[i]);
-      const double xi = inverseOf(f, y);
-      double predicted = xi;
-      if (variance_correction && v[i] > 0) {
-        // ψ''(y) = −φ''(x)/φ'(x)³ at x = ψ(y), central differences over ±2 levels
-        const double s = xi * (L - 1);
-        const int c = std::clamp(static_cast<int>(std::lround(s)), 2, L - 3);
-        const double hstep = 2.0 / (L - 1);
-        const double d1 = (f[c + 2] - f[c - 2]) / (2 * hstep);
-        const double d2 = (f[c + 2] - 2 * f[c] + f[c - 2]) / (hstep * hstep);
-        if (d1 > 1e-3) predicted += 0.5 * (-d2 / (d1 * d1 * d1)) * ratio * ratio * v[i];
-      }
-      const double e = predicted - prep->b_value[i];
-      sum += w * w * e * e;
-    }
-    return sum / weight_sum;
-  }
-  double operator()(const std::vector<double>& x, std::vector<double>* grad) const {
-    const double value = energy(x);
-    if (grad) {  // central differences (only when a derivative-based optimiser is asked for)
-      std::vector<double> xp = x;
-      for (std::size_t j = 0; j < x.size(); ++j) {
-        const double h = 1e-6 * std::max(1.0, std::abs(x[j]));
-        xp[j] = x[j] + h;
-        const double a = energy(xp);
-        xp[j] = x[j] - h;
-        const double b = energy(xp);
-        xp[j] = x[j];
-        (*grad)[j] = (a - b) / (2 * h);
-      }
-    }
-    return value;
-  }
-  // Eq. 25 on the used pixels.
-  double ratioStep(const std::vector<double>& x) const {
-    if (!curve->values(x.data(), f, nullptr)) return ratio;
-    g = debias ? prep->debias.apply(f) : f;
-    m.resize(prep->pixels.size());
-    prep->mixture.mix(g, m);
-    if (variance_correction) {
-      const int L = static_cast<int>(f.size());
-      f2.resize(L);
-      for (int i = 0; i < L; ++i) f2[i] = f[i] * f[i];
-      h = prep->debias.apply(f2);
-      for (int i = 0; i < L; ++i) h[i] = g[i] * g[i] - h[i];
-      v.resize(m.size());
-      prep->mixture.mixSquared(h, v);
-    }
-    double num = 0, den = 0;
-    for (std::size_t i = 0; i < m.size(); ++i) {
-      num += m[i] * phiAtB(*prep, f, static_cast<int>(i));
-      den += m[i] * m[i] - (variance_correction ? v[i] : 0.0);
-    }
-    return den > 0 ? num / den : ratio;
-  }
-};
-
-// ---------------------------------------------------------------------------------------------------------
-// Corrected irradiance objective. The pixels are grouped by the level of B into bins; per bin and fold the
-// corrected energy is a quadratic form fᵀ (Q0 + r Q1 + r² Q2) f. The intensity-domain scaling 1/φ'(B)² is
-// applied per bin with the secant slope of the *current* f over the bin (so a collapsing φ ≈ 0 gains
-// nothing: the energy is invariant to the local scale of φ), and within a bin by ω_p from the previous iterate.
-struct QuadraticForms {
-  int bins = 1;
+// Moment sums: per fold (16×16 checkerboard tiles) and instrument bin, the kernel-mass histogram of I's levels
+// (H), the level histogram of B (N) and the pixel count.
+struct Moments {
   int levels = 256;
-  std::vector<int> edge;  // bin b covers levels [edge[b], edge[b+1]]
-  std::vector<Eigen::MatrixXd> q0[2], q1[2], q2[2];
-  double weight[2] = {0, 0};
-  int binOf(int level) const { return std::min(bins - 1, level * bins / levels); }
+  int bins = 0;
+  Eigen::MatrixXd h[2], n[2];  // bins × levels
+  Eigen::MatrixXd q[2];        // squared aggregated masses: Σ_q [I_q = v] c_k(q)², c_k(q) = Σ_{p∈k} K(p − q)
+  Eigen::VectorXd count[2];
+  std::vector<double> bin_level;  // B level (in [0,1]) at the centre of each bin
 };
 
-QuadraticForms buildForms(const Prepared& prep, const std::vector<double>& omega, int threads, int bins) {
+Moments buildMoments(const Prepared& prep, const std::vector<int>& bin_of, int bins, int threads,
+                     std::size_t* nonzeros) {
   const int L = prep.levels;
-  const int n = static_cast<int>(prep.pixels.size());
-  const int stripes = std::max(1, threads);
-  QuadraticForms forms;
-  forms.bins = bins;
-  forms.levels = L;
-  for (int b = 0; b <= bins; ++b) forms.edge.push_back(std::min(L - 1, b * L / bins));
+  struct Tap { int dy, dx; double k; };
+  std::vector<Tap> taps;
+  const cv::Mat& kernel = prep.kernel;
+  const int cy = kernel.rows / 2, cx = kernel.cols / 2;
+  for (int y = 0; y < kernel.rows; ++y)
+    for (int x = 0; x < kernel.cols; ++x)
+      if (const double k = kernel.at<double>(y, x); k > 0) taps.push_back({cy - y, cx - x, k});
+  const int npix = static_cast<int>(prep.pixels.size());
+  const int stripes = std::max(1, std::min(threads, npix / 2000 + 1));
   struct Acc {
-    std::vector<Eigen::MatrixXd> bb[2], bw[2], ww[2];
-    std::vector<Eigen::VectorXd> u[2];
-    double weight[2] = {0, 0};
+    std::vector<double> h[2], n[2], c[2];
   };
   std::vector<Acc> acc(stripes);
-  for (auto& a : acc)
-    for (int f = 0; f < 2; ++f) {
-      a.bb[f].assign(bins, Eigen::MatrixXd::Zero(L, L));
-      a.bw[f].assign(bins, Eigen::MatrixXd::Zero(L, L));
-      a.ww[f].assign(bins, Eigen::MatrixXd::Zero(L, L));
-      a.u[f].assign(bins, Eigen::VectorXd::Zero(L));
-    }
+  const bool sharp_frac = !prep.sharp.frac.empty(), blurred_frac = !prep.blurred.frac.empty();
   auto work = [&](const cv::Range& range) {
     for (int s = range.start; s < range.end; ++s) {
       Acc& a = acc[s];
-      const int begin = static_cast<int>(static_cast<long long>(n) * s / stripes);
-      const int end = static_cast<int>(static_cast<long long>(n) * (s + 1) / stripes);
-      for (int i = begin; i < end; ++i) {
-        const double om = omega[i];
-        if (om <= 0) continue;
-        const int f = prep.fold[i];
-        const int bin = forms.binOf(prep.b_lo[i]);
-        a.weight[f] += om;
-        const auto levels = prep.mixture.rowLevels(i);
-        const auto w = prep.mixture.rowWeights(i);
-        const auto u = prep.mixture.rowSquared(i);
-        int bl[2] = {prep.b_lo[i], prep.b_lo[i] + 1};
-        double bv[2] = {1 - prep.b_frac[i], prep.b_frac[i]};
-        const int nb = prep.b_frac[i] > 0 ? 2 : 1;
-        double* bb = a.bb[f][bin].data();
-        double* bw = a.bw[f][bin].data();
-        double* ww = a.ww[f][bin].data();
-        double* uu = a.u[f][bin].data();
-        for (int s1 = 0; s1 < nb; ++s1) {
-          for (int s2 = 0; s2 < nb; ++s2) bb[static_cast<std::size_t>(bl[s2]) * L + bl[s1]] += om * bv[s1] * bv[s2];
-          for (std::size_t k = 0; k < levels.size(); ++k)
-            bw[static_cast<std::size_t>(levels[k]) * L + bl[s1]] += om * bv[s1] * w[k];  // (row b, col level)
+      for (int f = 0; f < 2; ++f) {
+        a.h[f].assign(static_cast<std::size_t>(bins) * L, 0.0);
+        a.n[f].assign(static_cast<std::size_t>(bins) * L, 0.0);
+        a.c[f].assign(bins, 0.0);
+      }
+      const int i0 = static_cast<int>(static_cast<long long>(npix) * s / stripes);
+      const int i1 = static_cast<int>(static_cast<long long>(npix) * (s + 1) / stripes);
+      for (int i = i0; i < i1; ++i) {
+        const cv::Point p = prep.pixels[i];
+        const int fold = ((p.x / 16) + (p.y / 16)) & 1;
+        const int b = bin_of[i];
+        double* h = a.h[fold].data() + static_cast<std::size_t>(b) * L;
+        double* nn = a.n[fold].data() + static_cast<std::size_t>(b) * L;
+        a.c[fold][b] += 1;
+        for (const Tap& t : taps) {
+          const int y = p.y + t.dy, x = p.x + t.dx;
+          const int lo = prep.sharp.lo.at<std::uint16_t>(y, x);
+          if (sharp_frac) {
+            const double fr = prep.sharp.frac.at<float>(y, x);
+            if (fr > 0) {
+              h[lo] += t.k * (1 - fr);
+              h[lo + 1] += t.k * fr;
+              continue;
+            }
+          }
+          h[lo] += t.k;
         }
-        for (std::size_t k = 0; k < levels.size(); ++k) {
-          uu[levels[k]] += om * u[k];
-          const double wk = om * w[k];
-          double* col = ww + static_cast<std::size_t>(levels[k]) * L;  // column levels[k]
-          for (std::size_t j = 0; j <= k; ++j) col[levels[j]] += wk * w[j];  // rows levels[j] ≤ levels[k]
-        }
+        const int blo = prep.blurred.lo.at<std::uint16_t>(p);
+        const double bfr = blurred_frac ? prep.blurred.frac.at<float>(p) : 0.0;
+        nn[blo] += 1 - bfr;
+        if (bfr > 0) nn[blo + 1] += bfr;
       }
     }
   };
   if (stripes == 1) work(cv::Range(0, 1));
   else cv::parallel_for_(cv::Range(0, stripes), work, stripes);
-
-  const Eigen::MatrixXd& r = prep.debias.matrix();
-  const bool identity = prep.debias.identity();
+  Moments m;
+  m.levels = L;
+  m.bins = bins;
   for (int f = 0; f < 2; ++f) {
-    for (auto& a : acc) forms.weight[f] += a.weight[f];
-    for (int bin = 0; bin < bins; ++bin) {
-      Eigen::MatrixXd bb = Eigen::MatrixXd::Zero(L, L), bw = bb, ww = bb;
-      Eigen::VectorXd u = Eigen::VectorXd::Zero(L);
-      for (auto& a : acc) {
-        bb += a.bb[f][bin];
-        bw += a.bw[f][bin];
-        ww += a.ww[f][bin];
-        u += a.u[f][bin];
-      }
-      Eigen::MatrixXd upper = ww.triangularView<Eigen::StrictlyUpper>();
-      ww = ww.triangularView<Eigen::Upper>();
-      ww += upper.transpose();
-      forms.q0[f].push_back(bb);
-      if (identity || bb.isZero(0)) {
-        forms.q1[f].push_back(-(bw + bw.transpose()));
-        forms.q2[f].push_back(ww);  // the variance correction cancels without debiasing
-      } else {
-        const Eigen::MatrixXd bwr = bw * r;
-        forms.q1[f].push_back(-(bwr + bwr.transpose()));
-        Eigen::MatrixXd inner = ww;
-        inner.diagonal() -= u;
-        Eigen::MatrixXd q2 = r.transpose() * inner * r;
-        q2.diagonal() += r.transpose() * u;
-        forms.q2[f].push_back(q2);
-      }
+    m.h[f] = Eigen::MatrixXd::Zero(bins, L);
+    m.n[f] = Eigen::MatrixXd::Zero(bins, L);
+    m.count[f] = Eigen::VectorXd::Zero(bins);
+    for (const Acc& a : acc) {
+      m.h[f] += Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(a.h[f].data(), bins, L);
+      m.n[f] += Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(a.n[f].data(), bins, L);
+      m.count[f] += Eigen::Map<const Eigen::VectorXd>(a.c[f].data(), bins);
     }
   }
-  return forms;
-}
-
-// The bin matrices at ratio r for one fold (or both: fold −1).
-struct BinnedForm {
-  std::vector<Eigen::MatrixXd> q;
-  std::vector<int> edge;
-  double weight = 1;
-};
-
-BinnedForm formAt(const QuadraticForms& forms, double r, int fold) {
-  BinnedForm out;
-  out.edge = forms.edge;
-  out.weight = 0;
-  for (int f = 0; f < 2; ++f)
-    if (fold < 0 || fold == f) out.weight += forms.weight[f];
-  if (out.weight <= 0) out.weight = 1;
-  for (int b = 0; b < forms.bins; ++b) {
-    Eigen::MatrixXd q = Eigen::MatrixXd::Zero(forms.levels, forms.levels);
-    for (int f = 0; f < 2; ++f)
-      if (fold < 0 || fold == f) q += forms.q0[f][b] + r * forms.q1[f][b] + r * r * forms.q2[f][b];
-    out.q.push_back(0.5 * (q + q.transpose()));
-  }
-  return out;
-}
-
-// J(f) = Σ_b (h_b / Δf_b)² fᵀ Q_b f / W, h_b the bin width, Δf_b = f(edge_{b+1}) − f(edge_b).
-struct QuadraticObjective {
-  const Curve* curve;
-  const BinnedForm* form;
-  mutable std::vector<double> f, jac;
-
-  double binScale(int b, double* d_delta) const {
-    const int lo = form->edge[b], hi = form->edge[b + 1];
-    const double h = double(hi - lo) / (form->q.size() > 0 ? double(curve->levels() - 1) : 1.0);
-    const double delta = std::max(f[hi] - f[lo], 1e-9);
-    if (d_delta) *d_delta = -2 * h * h / (delta * delta * delta);
-    return h * h / (delta * delta);
-  }
-  double evaluateF(std::vector<double>* grad_f) const {
-    const int L = static_cast<int>(f.size());
-    Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
-    double value = 0;
-    if (grad_f) grad_f->assign(L, 0.0);
-    for (std::size_t b = 0; b < form->q.size(); ++b) {
-      double ds = 0;
-      const double s = binScale(static_cast<int>(b), grad_f ? &ds : nullptr);
-      const Eigen::VectorXd qf = form->q[b] * fv;
-      const double e = fv.dot(qf);
-      value += s * e;
-      if (grad_f) {
-        Eigen::Map<Eigen::VectorXd> g(grad_f->data(), L);
-        g += 2 * s * qf;
-        if (f[form->edge[b + 1]] - f[form->edge[b]] > 1e-9) {
-          (*grad_f)[form->edge[b + 1]] += ds * e;
-          (*grad_f)[form->edge[b]] -= ds * e;
+  if (nonzeros) *nonzeros = static_cast<std::size_t>(((m.h[0] + m.h[1]).array() != 0).count());
+  // Squared aggregated masses per (fold, bin): the variance of the bin sum Σ_q c_k(q) g(I_q) under independent
+  // per-pixel noise of I is Σ_q c_k(q)² Var g(I_q). Pixels grouped by (fold, bin), masses scattered into a
+  // per-stripe image buffer.
+  std::vector<int> order(npix);
+  std::iota(order.begin(), order.end(), 0);
+  auto foldOf = [&](int i) { return ((prep.pixels[i].x / 16) + (prep.pixels[i].y / 16)) & 1; };
+  std::sort(order.begin(), order.end(), [&](int a, int b) {
+    const int ka = bin_of[a] * 2 + foldOf(a), kb = bin_of[b] * 2 + foldOf(b);
+    return ka != kb ? ka < kb : a < b;
+  });
+  std::vector<int> group_start{0};
+  for (int j = 1; j < npix; ++j)
+    if (bin_of[order[j]] * 2 + foldOf(order[j]) != bin_of[order[j - 1]] * 2 + foldOf(order[j - 1])) group_start.push_back(j);
+  group_start.push_back(npix);
+  const int groups = static_cast<int>(group_start.size()) - 1;
+  std::vector<Eigen::MatrixXd> qacc(stripes);
+  auto qwork = [&](const cv::Range& range) {
+    for (int s = range.start; s < range.end; ++s) {
+      Eigen::MatrixXd& q = qacc[s];
+      q = Eigen::MatrixXd::Zero(2 * bins, L);
+      cv::Mat buffer = cv::Mat::zeros(prep.sharp.lo.size(), CV_64F);
+      std::vector<cv::Point> touched;
+      const int g0 = static_cast<int>(static_cast<long long>(groups) * s / stripes);
+      const int g1 = static_cast<int>(static_cast<long long>(groups) * (s + 1) / stripes);
+      for (int g = g0; g < g1; ++g) {
+        touched.clear();
+        const int first = order[group_start[g]];
+        const int row = bin_of[first] * 2 + foldOf(first);
+        for (int j = group_start[g]; j < group_start[g + 1]; ++j) {
+          const cv::Point p = prep.pixels[order[j]];
+          for (const Tap& t : taps) {
+            double& c = buffer.at<double>(p.y + t.dy, p.x + t.dx);
+            if (c == 0.0) touched.emplace_back(p.x + t.dx, p.y + t.dy);
+            c += t.k;
+          }
+        }
+        for (const cv::Point& qp : touched) {
+          double& c = buffer.at<double>(qp);
+          const double c2 = c * c;
+          c = 0.0;
+          const int lo = prep.sharp.lo.at<std::uint16_t>(qp);
+          const double fr = sharp_frac ? prep.sharp.frac.at<float>(qp) : 0.0;
+          q(row, lo) += c2 * (1 - fr);
+          if (fr > 0) q(row, lo + 1) += c2 * fr;
         }
       }
     }
-    if (grad_f)
-      for (double& g : *grad_f) g /= form->weight;
-    return value / form->weight;
-  }
-  double operator()(const std::vector<double>& x, std::vector<double>* grad) const {
-    if (grad) std::fill(grad->begin(), grad->end(), 0.0);
-    if (!curve->values(x.data(), f, grad ? &jac : nullptr)) return Curve::kInfeasible;
-    std::vector<double> gf;
-    double value = evaluateF(grad ? &gf : nullptr);
-    if (grad) {
-      const int L = static_cast<int>(f.size());
-      Eigen::Map<const Eigen::VectorXd> gv(gf.data(), L);
-      for (int j = 0; j < curve->dims(); ++j) {
-        Eigen::Map<const Eigen::VectorXd> row(jac.data() + static_cast<std::size_t>(j) * L, L);
-        (*grad)[j] = row.dot(gv);
-      }
-    }
-    value += curve->penalty(x.data(), grad ? grad->data() : nullptr);
-    return value;
-  }
-  double plain(const std::vector<double>& x) const {
-    if (!curve->values(x.data(), f, nullptr)) return std::numeric_limits<double>::infinity();
-    return evaluateF(nullptr);
-  }
-  // r minimising Σ_b s_b fᵀ(Q0 + r Q1 + r² Q2)f for the given per-ratio forms.
-};
-
-bool isValid(const ResponseModel& model) { return static_cast<bool>(checkValidity(model, 4096, 1e-6)); }
-
-struct FitOutcome {
-  std::vector<double> x;
-  double value = std::numeric_limits<double>::infinity();
-  bool valid = false;
-  int evaluations = 0;
-};
-
-// EMoR: closed-form minimiser of the quadratic form with the bin scales frozen at `reference` (irradiance-
-// domain least squares, φ(0) = 0 and φ(1) = 1 by construction), then refinement of the full objective.
-FitOutcome fitEmor(const Curve& curve, const BinnedForm& form, const std::vector<double>& reference,
-                   const CrfFitOptions& options) {
-  const int L = curve.levels();
-  const int k = curve.dims();
-  Eigen::MatrixXd h(L, k);
-  for (int j = 0; j < k; ++j) h.col(j) = Eigen::Map<const Eigen::VectorXd>(curve.emorLevels(j + 1), L);
-  const Eigen::Map<const Eigen::VectorXd> g0(curve.emorLevels(0), L);
-  Eigen::MatrixXd q = Eigen::MatrixXd::Zero(L, L);
-  for (std::size_t b = 0; b < form.q.size(); ++b) {
-    const int lo = form.edge[b], hi = form.edge[b + 1];
-    const double hb = double(hi - lo) / (L - 1);
-    const double delta = std::max(reference[hi] - reference[lo], 1e-6);
-    q += (hb * hb / (delta * delta)) * form.q[b];
-  }
-  Eigen::MatrixXd a = h.transpose() * q * h;
-  const Eigen::VectorXd rhs = -(h.transpose() * (q * g0));
-  a.diagonal().array() += 1e-10 * std::max(1e-300, a.trace() / k);
-  const Eigen::VectorXd c = a.ldlt().solve(rhs);
-  FitOutcome out;
-  out.x = c.allFinite() ? std::vector<double>(c.data(), c.data() + k) : std::vector<double>(k, 0.0);
-  QuadraticObjective objective{&curve, &form, {}, {}};
-  const Minimum m = minimise(options.optimizer == CrfOptimizer::nelder_mead ? CrfOptimizer::lbfgs : options.optimizer,
-                             out.x, objective, options.max_evaluations, 0.05);
-  const bool start_valid = isValid(curve.model(out.x));
-  const bool refined_valid = isValid(curve.model(m.x));
-  out.evaluations = m.evaluations;
-  if (refined_valid && (!start_valid || objective.plain(m.x) <= objective.plain(out.x))) out.x = m.x;
-  out.valid = isValid(curve.model(out.x));
-  out.value = objective.plain(out.x);
-  return out;
+  };
+  if (stripes == 1) qwork(cv::Range(0, 1));
+  else cv::parallel_for_(cv::Range(0, stripes), qwork, stripes);
+  for (int f = 0; f < 2; ++f) m.q[f] = Eigen::MatrixXd::Zero(bins, L);
+  for (const auto& q : qacc)
+    for (int k = 0; k < bins; ++k)
+      for (int f = 0; f < 2; ++f) m.q[f].row(k) += q.row(k * 2 + f);
+  return m;
 }
 
-FitOutcome fitGgcm(const Curve& curve, const Objective& objective, const std::vector<std::vector<double>>& starts,
-                   CrfOptimizer optimizer, int max_evaluations, const std::function<double(const std::vector<double>&)>& plain) {
-  FitOutcome best;
+// The weighted rows of one data selection: residual_k = √ω_k (r Ĥ_k − N_k) · φ.
+// The residual is divided by the secant slope of the current φ over the bin's B levels [v0, v1] (first-order
+// intensity-domain residual, Eq. 21), which also removes the φ → 0 / r → 0 degeneracy of irradiance residuals.
+struct MomentSystem {
+  Eigen::MatrixXd h, n;  // rows already scaled by √ω
+  Eigen::MatrixXd q;     // squared masses, scaled by ω (variance of the row's noise: r² q · Var g)
+  std::vector<double> row_scale;  // √(ω/n) of each row
+  std::vector<int> v0, v1;
+  double weight = 0;     // Σ ω (normalisation of the energy)
+  int levels() const { return static_cast<int>(h.cols()); }
+};
+
+// fold: 0 or 1 for one half, -1 for both. omega: per-bin weight (applied to sums).
+MomentSystem makeSystem(const Moments& m, const Eigen::MatrixXd* debias_t, int fold, const Eigen::VectorXd& omega,
+                        int level_bins, const std::vector<int>& level_bin_of) {
+  Eigen::MatrixXd h, n, q;
+  Eigen::VectorXd c;
+  if (fold < 0) {
+    h = m.h[0] + m.h[1];
+    n = m.n[0] + m.n[1];
+    q = m.q[0] + m.q[1];  // folds are 16×16 tiles: the cross-fold covariance at tile borders is neglected
+    c = m.count[0] + m.count[1];
+  } else {
+    h = m.h[fold];
+    n = m.n[fold];
+    q = m.q[fold];
+    c = m.count[fold];
+  }
+  // keep non-empty bins only
+  std::vector<int> rows;
+  for (int k = 0; k < m.bins; ++k)
+    if (c[k] > 0) rows.push_back(k);
+  MomentSystem s;
+  s.h.resize(static_cast<int>(rows.size()), m.levels);
+  s.n.resize(static_cast<int>(rows.size()), m.levels);
+  s.q.resize(static_cast<int>(rows.size()), m.levels);
+  for (int i = 0; i < static_cast<int>(rows.size()); ++i) {
+    const int k = rows[i];
+    const double w = omega[k] / c[k];  // ω_k / n_k on sums
+    const double sw = std::sqrt(w);
+    s.h.row(i) = sw * h.row(k);
+    s.n.row(i) = sw * n.row(k);
+    s.q.row(i) = w * q.row(k);
+    s.row_scale.push_back(sw);
+    s.weight += omega[k];
+    const int kb = level_bin_of[k], L = m.levels;
+    const int margin = std::max(1, (L - 1) / (2 * level_bins));
+    s.v0.push_back(std::max(0, static_cast<int>(std::floor(double(kb) / level_bins * (L - 1))) - margin));
+    s.v1.push_back(std::min(L - 1, static_cast<int>(std::ceil(double(kb + 1) / level_bins * (L - 1))) + margin));
+  }
+  if (debias_t) s.h = s.h * (*debias_t);  // (Rᵀ H_k)ᵀ = H_kᵀ R
+  return s;
+}
+
+struct ModelFit {
+  std::vector<double> x;
+  double ratio = 1;
+  double energy = kInf;  // per unit weight
+  bool valid = false;
+  int evaluations = 0;
+  int iterations = 0;
+};
+
+// Monotonicity penalty residuals on the 1024 grid: √P · max(0, f_i − f_{i+1} + ε).
+constexpr double kPenaltyScale = 1e3;
+
+ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vector<std::vector<double>> starts,
+                         double r0, bool fit_ratio, int max_iterations) {
+  const int L = sys.levels();
+  const int d = curve.dims();
+  const int rows = static_cast<int>(sys.h.rows());
+  const bool emor = curve.kind() == Curve::kEmor;
+  const double norm = 1.0 / std::sqrt(std::max(sys.weight, 1e-300));
+  const int extra = emor ? kGrid - 1 : 0;
+  ResidualFn fn = [&](const Eigen::VectorXd& p, Eigen::VectorXd& res, Eigen::MatrixXd* jac) {
+    std::vector<double> f, jf;
+    if (!curve.values(p.data(), f, jac ? &jf : nullptr)) return false;
+    const double r = fit_ratio ? std::exp(p[d]) : r0;
+    Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
+    const Eigen::VectorXd hf = sys.h * fv, nf = sys.n * fv;
+    Eigen::VectorXd slope(rows), raw = r * hf - nf;
+    for (int i = 0; i < rows; ++i) {
+      slope[i] = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
+      if (!(slope[i] > 1e-9)) return false;
+    }
+    res.resize(rows + extra);
+    res.head(rows) = norm * raw.cwiseQuotient(slope);
+    std::vector<double> g, jg;
+    if (emor) {
+      curve.gridValues(p.data(), g, jac ? &jg : nullptr);
+      for (int i = 0; i + 1 < kGrid; ++i) res[rows + i] = kPenaltyScale * std::max(0.0, g[i] - g[i + 1] + 1e-7);
+    } else if (!monotone(f)) {
+      return false;
+    }
+    if (jac) {
+      const int np = static_cast<int>(p.size());
+      jac->setZero(rows + extra, np);
+      Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> jm(jf.data(), d, L);
+      const Eigen::MatrixXd draw = (r * sys.h - sys.n) * jm.transpose();  // rows × d
+      for (int i = 0; i < rows; ++i) {
+        const double scale = (L - 1) / double(sys.v1[i] - sys.v0[i]);
+        for (int j = 0; j < d; ++j) {
+          const double dslope = (jm(j, sys.v1[i]) - jm(j, sys.v0[i])) * scale;
+          (*jac)(i, j) = norm * (draw(i, j) / slope[i] - raw[i] * dslope / (slope[i] * slope[i]));
+        }
+      }
+      if (fit_ratio) jac->col(d).head(rows) = norm * r * hf.cwiseQuotient(slope);
+      if (emor)
+        for (int i = 0; i + 1 < kGrid; ++i)
+          if (g[i] - g[i + 1] + 1e-7 > 0)
+            for (int j = 0; j < d; ++j) (*jac)(rows + i, j) = kPenaltyScale * (jg[j * kGrid + i] - jg[j * kGrid + i + 1]);
+    }
+    return true;
+  };
+  ModelFit best;
+  if (emor && starts.empty()) {
+    // linear least squares in c at r0 (the residual is linear in c for fixed r)
+    std::vector<double> f0, jf;
+    const std::vector<double> zero(d, 0.0);
+    curve.values(zero.data(), f0, &jf);
+    Eigen::Map<const Eigen::VectorXd> b0(f0.data(), L);
+    Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> e(jf.data(), d, L);
+    const Eigen::MatrixXd a = r0 * sys.h - sys.n;
+    const Eigen::MatrixXd m = a * e.transpose();
+    const Eigen::VectorXd y = -(a * b0);
+    const Eigen::VectorXd c = m.colPivHouseholderQr().solve(y);
+    starts.push_back(std::vector<double>(c.data(), c.data() + d));
+    starts.push_back(zero);
+  }
   for (const auto& s : starts) {
-    const Minimum m = minimise(optimizer, s, objective, max_evaluations, 0.05);
-    best.evaluations += m.evaluations;
-    const bool valid = isValid(curve.model(m.x));
-    const double value = plain(m.x);
-    if ((valid && !best.valid) || (valid == best.valid && value < best.value)) {
-      best.x = m.x;
-      best.value = value;
-      best.valid = valid;
+    Eigen::VectorXd p(d + (fit_ratio ? 1 : 0));
+    for (int j = 0; j < d; ++j) p[j] = s[j];
+    if (fit_ratio) p[d] = std::log(r0);
+    const LmResult lm = levenbergMarquardt(p, fn, max_iterations);
+    best.evaluations += lm.evaluations;
+    best.iterations += lm.iterations;
+    if (lm.cost < best.energy) {
+      best.energy = lm.cost;
+      best.x.assign(lm.x.data(), lm.x.data() + d);
+      best.ratio = fit_ratio ? std::exp(lm.x[d]) : r0;
     }
   }
+  if (!best.x.empty()) best.valid = isValid(curve.model(best.x));
   return best;
 }
 
-cv::Mat supportBox(const cv::Mat& kernel) {
-  return cv::getStructuringElement(cv::MORPH_RECT, cv::Size(kernel.cols, kernel.rows));
+// Continuously-updated GMM (CUE): residual_k = S_k / √V_k(φ, r), S_k = (r Ĥ_k − N_k)·φ the bin sum and
+// V_k = r² Σ_v q_k(v) Var[g(I) | v] + Σ_v N_k(v) φ'(x_v)² Δ²/12 its model variance (I's noise through the
+// transition matrix T, plus the quantisation of B and I). The noise part of E[S_k²/V_k] is 1 whatever φ is, so the
+// squared noise no longer pulls φ (the errors-in-variables bias of squared sums), and the ratio is invariant to
+// the scale of φ (no φ → 0 degeneracy).
+struct CueModel {
+  const Eigen::MatrixXd* t = nullptr;  // transition matrix (null: no noise of I)
+  const Eigen::MatrixXd* r = nullptr;  // debias operator (null: g = φ)
+};
+
+bool cueResiduals(const MomentSystem& sys, const CueModel& cue, const std::vector<double>& f, double r,
+                  Eigen::VectorXd& res) {
+  const int L = sys.levels();
+  Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
+  const Eigen::VectorXd raw = r * (sys.h * fv) - sys.n * fv;
+  const Eigen::VectorXd g = cue.r ? Eigen::VectorXd(*cue.r * fv) : Eigen::VectorXd(fv);
+  Eigen::VectorXd var(L), slope2(L);
+  const double delta2 = 1.0 / (12.0 * (L - 1) * (L - 1));
+  for (int v = 0; v < L; ++v) {
+    const int a = std::max(0, v - 1), b = std::min(L - 1, v + 1);
+    const double gs = (g[b] - g[a]) * (L - 1) / double(b - a);
+    const double fs = (f[b] - f[a]) * (L - 1) / double(b - a);
+    var[v] = gs * gs * delta2;
+    slope2[v] = fs * fs * delta2;
+  }
+  if (cue.t) {
+    const Eigen::VectorXd m1 = *cue.t * g, m2 = *cue.t * g.cwiseProduct(g);
+    var += (m2 - m1.cwiseProduct(m1)).cwiseMax(0.0);
+  }
+  const Eigen::VectorXd vq = sys.q * var, vb = sys.n * slope2;
+  res.resize(raw.size());
+  for (int i = 0; i < static_cast<int>(raw.size()); ++i) {
+    const double v = r * r * vq[i] + sys.row_scale[i] * vb[i] + 1e-18;
+    if (!(v > 0)) return false;
+    res[i] = raw[i] / std::sqrt(v);
+  }
+  return true;
+}
+
+ModelFit fitModelCue(const Curve& curve, const MomentSystem& sys, const CueModel& cue,
+                     std::vector<std::vector<double>> starts, double r0, bool fit_ratio, int max_iterations) {
+  const int d = curve.dims();
+  const bool emor = curve.kind() == Curve::kEmor;
+  const int rows = static_cast<int>(sys.h.rows());
+  const double norm = 1.0 / std::sqrt(std::max(1, rows));
+  auto eval = [&](const Eigen::VectorXd& p, Eigen::VectorXd& res) {
+    std::vector<double> f;
+    if (!curve.values(p.data(), f, nullptr) || !monotone(f)) return false;
+    if (emor) {
+      std::vector<double> g;
+      curve.gridValues(p.data(), g, nullptr);
+      if (!monotone(g)) return false;
+    }
+    const double r = fit_ratio ? std::exp(p[d]) : r0;
+    if (!cueResiduals(sys, cue, f, r, res)) return false;
+    res *= norm;
+    return true;
+  };
+  ResidualFn fn = [&](const Eigen::VectorXd& p, Eigen::VectorXd& res, Eigen::MatrixXd* jac) {
+    if (!eval(p, res)) return false;
+    if (jac) {
+      jac->resize(res.size(), p.size());
+      Eigen::VectorXd pp = p, rp;
+      for (int j = 0; j < p.size(); ++j) {
+        const double h = 1e-6 * std::max(1.0, std::abs(p[j]));
+        pp[j] = p[j] + h;
+        if (eval(pp, rp)) jac->col(j) = (rp - res) / h;
+        else {
+          pp[j] = p[j] - h;
+          if (!eval(pp, rp)) return false;
+          jac->col(j) = (res - rp) / h;
+        }
+        pp[j] = p[j];
+      }
+    }
+    return true;
+  };
+  ModelFit best;
+  for (const auto& s : starts) {
+    if (s.empty()) continue;
+    Eigen::VectorXd p(d + (fit_ratio ? 1 : 0));
+    for (int j = 0; j < d; ++j) p[j] = s[j];
+    if (fit_ratio) p[d] = std::log(r0);
+    const LmResult lm = levenbergMarquardt(p, fn, max_iterations);
+    best.evaluations += lm.evaluations * (d + 2);
+    best.iterations += lm.iterations;
+    if (lm.cost < best.energy) {
+      best.energy = lm.cost;
+      best.x.assign(lm.x.data(), lm.x.data() + d);
+      best.ratio = fit_ratio ? std::exp(lm.x[d]) : r0;
+    }
+  }
+  if (!best.x.empty()) best.valid = isValid(curve.model(best.x));
+  return best;
+}
+
+// Energy (per unit weight) of a fixed φ on a system, r given.
+double momentEnergy(const MomentSystem& sys, const std::vector<double>& f, double r) {
+  const int L = sys.levels();
+  Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
+  const Eigen::VectorXd raw = r * (sys.h * fv) - sys.n * fv;
+  double e = 0;
+  for (int i = 0; i < static_cast<int>(raw.size()); ++i) {
+    const double slope = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
+    if (!(slope > 1e-9)) return kInf;
+    e += raw[i] * raw[i] / (slope * slope);
+  }
+  return e / std::max(sys.weight, 1e-300);
+}
+
+// Bias-corrected moment energy (corrected score): the squared bin sums carry the noise variance of I's mixture,
+// r² Σ_v q(v) Var g(I); with g = R φ, g(x_v)² − (R φ²)(x_v) is an unbiased estimate of Var g(I) for a pixel
+// at level v, so E[corrected] = the noise-free moment energy.
+double correctedEnergy(const MomentSystem& sys, const Eigen::MatrixXd& R, const std::vector<double>& f, double r) {
+  const int L = sys.levels();
+  Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
+  const Eigen::VectorXd raw = r * (sys.h * fv) - sys.n * fv;
+  const Eigen::VectorXd g = R * fv;
+  const Eigen::VectorXd var = g.cwiseProduct(g) - R * fv.cwiseProduct(fv);
+  const Eigen::VectorXd vt = sys.q * var;
+  double e = 0;
+  for (int i = 0; i < static_cast<int>(raw.size()); ++i) {
+    const double slope = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
+    if (!(slope > 1e-9)) return kInf;
+    e += (raw[i] * raw[i] - r * r * vt[i]) / (slope * slope);
+  }
+  return e / std::max(sys.weight, 1e-300);
+}
+
+// Nelder–Mead on the corrected energy over (parameters, log r), from a least-squares fit.
+ModelFit refineCorrected(const Curve& curve, const MomentSystem& sys, const Eigen::MatrixXd& R, const ModelFit& start,
+                         bool fit_ratio, int max_evaluations) {
+  if (start.x.empty()) return start;
+  const int d = curve.dims();
+  auto energy = [&](const std::vector<double>& p) {
+    std::vector<double> f;
+    if (!curve.values(p.data(), f, nullptr) || !monotone(f)) return 1e6;
+    if (curve.kind() == Curve::kEmor) {
+      std::vector<double> g;
+      curve.gridValues(p.data(), g, nullptr);
+      if (!monotone(g)) return 1e6;
+    }
+    const double e = correctedEnergy(sys, R, f, fit_ratio ? std::exp(p[d]) : start.ratio);
+    return std::isfinite(e) ? e : 1e6;
+  };
+  std::vector<double> p0 = start.x;
+  if (fit_ratio) p0.push_back(std::log(start.ratio));
+  const Minimum m = nelderMead(p0, energy, max_evaluations, 0.02, 1e-10);
+  ModelFit out = start;
+  out.evaluations += m.evaluations;
+  if (m.value < 1e6) {
+    out.x.assign(m.x.begin(), m.x.begin() + d);
+    if (fit_ratio) out.ratio = std::exp(m.x[d]);
+    out.energy = m.value;
+    out.valid = isValid(curve.model(out.x));
+    if (!out.valid) out = start;
+  }
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Seed objective (Eq. 22): Σ W² (ψ(r · m_p) − B_p)² / Σ W², m_p = Σ w_p(v) g(x_v), g = f or R f.
+struct SeedObjective {
+  const Prepared* prep;
+  const LevelMixture* mixture;
+  const Curve* curve;
+  const NoiseDebias* debias;  // null: none
+  std::vector<double> b_value;
+  double ratio = 1;
+  double weight_sum = 1;
+
+  double energy(const std::vector<double>& x) const {
+    std::vector<double> f;
+    if (!curve->values(x.data(), f, nullptr)) return 1e6;
+    if (!monotone(f)) return 1e5;
+    const std::vector<double> g = debias ? debias->apply(f) : f;
+    std::vector<double> m(prep->pixels.size());
+    mixture->mix(g, m);
+    double sum = 0;
+    for (std::size_t i = 0; i < m.size(); ++i) {
+      const double w = prep->seed_weight[i];
+      const double e = inverseOf(f, std::min(1.0, ratio * m[i])) - b_value[i];
+      sum += w * w * e * e;
+    }
+    return sum / weight_sum;
+  }
+  // Eq. 25.
+  double ratioStep(const std::vector<double>& x) const {
+    std::vector<double> f;
+    if (!curve->values(x.data(), f, nullptr)) return ratio;
+    const std::vector<double> g = debias ? debias->apply(f) : f;
+    std::vector<double> m(prep->pixels.size());
+    mixture->mix(g, m);
+    double num = 0, den = 0;
+    const int L = static_cast<int>(f.size());
+    for (std::size_t i = 0; i < m.size(); ++i) {
+      const double s = std::clamp(b_value[i], 0.0, 1.0) * (L - 1);
+      const int lo = std::min(L - 2, static_cast<int>(s));
+      const double t = s - lo;
+      const double pb = (1 - t) * f[lo] + t * f[lo + 1];
+      num += m[i] * pb;
+      den += m[i] * m[i];
+    }
+    return den > 0 ? num / den : ratio;
+  }
+};
+
+// Edge-preserving denoising of I: a bilateral filter (5×5, range σ_r = 2σ, spatial σ_s = 1.5), twice.
+cv::Mat denoiseSharp(const cv::Mat& unit, double sigma) {
+  if (!(sigma > 0.5 / 255)) return unit.clone();
+  cv::Mat a, b;
+  unit.convertTo(a, CV_32F);
+  cv::bilateralFilter(a, b, 5, 2.0 * sigma, 1.5, cv::BORDER_REFLECT);
+  cv::bilateralFilter(b, a, 5, 2.0 * sigma, 1.5, cv::BORDER_REFLECT);
+  cv::Mat out;
+  a.convertTo(out, CV_64F);
+  cv::min(cv::max(out, 0.0), 1.0, out);
+  return out;
 }
 
 }  // namespace
 
-CrfFitResult fitInverseCrf(const cv::Mat& sharp_in, const cv::Mat& blurred_in, const cv::Mat& kernel_in,
+CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel_in,
                            const CrfFitOptions& options) {
   options.check();
   const auto t_start = Clock::now();
-  auto report = [&](double fraction, const char* stage) {
+  auto report = [&](double fraction, const std::string& stage) {
     if (options.progress) options.progress(fraction, stage);
   };
-  if (sharp_in.empty() || blurred_in.empty()) throw InvalidInput("fit: sharp and blurred images must not be empty");
-  if (sharp_in.size() != blurred_in.size())
-    throw InvalidInput("fit: sharp and blurred images differ in size (" + std::to_string(sharp_in.cols) + "x" +
-                       std::to_string(sharp_in.rows) + " vs " + std::to_string(blurred_in.cols) + "x" +
-                       std::to_string(blurred_in.rows) + ")");
-  if (sharp_in.channels() != 1 || blurred_in.channels() != 1)
-    throw InvalidInput("fit: sharp and blurred images must be single-channel");
-  const cv::Mat kernel = normalizeKernel(kernel_in);
-  const cv::Mat sharp = toUnitGray(sharp_in);
-  const cv::Mat blurred = toUnitGray(blurred_in);
+  if (sharp.empty() || blurred.empty()) throw InvalidInput("fit: empty image");
+  if (sharp.size() != blurred.size()) throw InvalidInput("fit: sharp and blurred images differ in size");
+  if (sharp.channels() != 1 || blurred.channels() != 1) throw InvalidInput("fit: images must be single-channel");
   const int threads = options.threads > 0 ? options.threads : std::max(1, cv::getNumThreads());
+  const bool seed_objective = options.objective == CrfObjective::seed_intensity;
 
   CrfFitResult result;
   result.initial_ratio = options.initial_ratio;
   result.objective = options.objective;
   result.optimizer = options.optimizer;
-  report(0.0, "prepare");
 
   Prepared prep;
-  prep.levels = std::max(naturalLevels(sharp_in), naturalLevels(blurred_in));
-  const int L = prep.levels;
+  prep.kernel = normalizeKernel(kernel_in);
+  const cv::Mat& kernel = prep.kernel;
+  prep.sharp_unit = toUnitGray(sharp);
+  prep.blurred_unit = toUnitGray(blurred);
+  const int L = std::max(naturalLevels(sharp), naturalLevels(blurred));
+  prep.levels = L;
   result.levels = L;
 
-  // Noise of I (estimated from I alone unless given).
+  // σ of I.
+  const bool need_sigma = options.noise != NoiseHandling::none || !seed_objective;
   double sigma = 0;
-  if (options.noise != NoiseHandling::none) {
-    if (options.noise_sigma >= 0) sigma = options.noise_sigma;
-    else {
-      sigma = estimateNoiseSigma(sharp).sigma;
-      result.noise_sigma_estimated = true;
-    }
+  if (!options.noise_sigma_per_level.empty()) {
+    if (static_cast<int>(options.noise_sigma_per_level.size()) != L)
+      throw InvalidInput("fit options: noise_sigma_per_level has " + std::to_string(options.noise_sigma_per_level.size()) +
+                         " entries, the level grid has " + std::to_string(L));
+    sigma = std::accumulate(options.noise_sigma_per_level.begin(), options.noise_sigma_per_level.end(), 0.0) / L;
   } else if (options.noise_sigma >= 0) {
     sigma = options.noise_sigma;
-  } else {
-    sigma = estimateNoiseSigma(sharp).sigma;
+  } else if (need_sigma && sharp.rows >= 9 && sharp.cols >= 9) {
+    sigma = estimateNoiseSigma(prep.sharp_unit).sigma;
     result.noise_sigma_estimated = true;
   }
   result.noise_sigma = sigma;
-  const bool noisy = sigma > 1.5 / 255.0;
+  const bool noisy = sigma * 255.0 > 1.0;  // more than one 8-bit level
 
-  cv::Mat sharp_used = sharp;
-  if (options.noise == NoiseHandling::denoise && noisy) {
-    cv::Mat f32, den;
-    sharp.convertTo(f32, CV_32F);
-    cv::bilateralFilter(f32, den, 7, 2.0 * sigma, 2.0, cv::BORDER_REFLECT);
-    den.convertTo(sharp_used, CV_64F);
-  }
+  cv::Mat sharp_used = prep.sharp_unit;
+  if (options.noise == NoiseHandling::denoise) sharp_used = denoiseSharp(prep.sharp_unit, sigma);
   prep.sharp = toLevels(sharp_used, L);
-  prep.blurred = toLevels(blurred, L);
-  const bool debias = options.noise == NoiseHandling::debias;
-  prep.debias = NoiseDebias(NoiseDebiasOptions{L, debias ? sigma : 0.0, options.debias_regularization});
+  prep.blurred = toLevels(prep.blurred_unit, L);
 
-  // Pixel accounting: border, saturation (dilated by the support), weights.
+  // Pixel accounting: border, saturation (dilated by the support), edges.
   CrfPixelAccounting& acc = result.pixels;
-  acc.total = sharp.rows * sharp.cols;
+  acc.total = static_cast<int>(sharp.total());
   const cv::Rect inside = interiorRect(sharp.size(), kernel);
-  acc.border = acc.total - inside.area();
-  if (inside.area() == 0) throw InvalidInput("fit: the kernel is larger than the images");
-  cv::Mat sharp_ref = sharp;
-  if (noisy) {  // judge saturation of a noisy I on its local median
-    cv::Mat s8, med;
-    sharp.convertTo(s8, CV_8U, 255.0);
-    cv::medianBlur(s8, med, 5);
-    med.convertTo(sharp_ref, CV_64F, 1.0 / 255.0);
+  cv::Mat interior = cv::Mat::zeros(sharp.size(), CV_8U);
+  if (inside.area() > 0) interior(inside).setTo(255);
+  acc.border = acc.total - cv::countNonZero(interior);
+  cv::Mat bad = (prep.blurred_unit >= options.saturation_high) | (prep.blurred_unit <= options.saturation_low);
+  if (noisy) {
+    // A noisy I clips at 0 and 1 by noise alone (modelled by the censored transition matrix); only regions whose
+    // local median is saturated are saturated (a per-pixel test would select pixels by their noise).
+    cv::Mat s32, med;
+    prep.sharp_unit.convertTo(s32, CV_32F);
+    cv::medianBlur(s32, med, 5);
+    bad |= (med >= options.saturation_high) | (med <= options.saturation_low);
+  } else {
+    bad |= (prep.sharp_unit >= options.saturation_high) | (prep.sharp_unit <= options.saturation_low);
   }
-  cv::Mat saturated = (blurred >= options.saturation_high) | (blurred <= options.saturation_low) |
-                      (sharp_ref >= options.saturation_high) | (sharp_ref <= options.saturation_low);
-  cv::dilate(saturated, saturated, supportBox(kernel));
-  const cv::Mat sat_inside = saturated(inside);
-  acc.saturated = cv::countNonZero(sat_inside);
-  if (acc.saturated == inside.area())
-    throw InvalidInput("fit: all pixels are saturated or black in the sharp or blurred image; nothing to fit");
+  {
+    const cv::Size ks((kernel.cols | 1) + (kernel.cols % 2 == 0 ? 1 : 0), (kernel.rows | 1) + (kernel.rows % 2 == 0 ? 1 : 0));
+    cv::dilate(bad, bad, cv::getStructuringElement(cv::MORPH_RECT, ks));
+  }
+  bad &= interior;
+  acc.saturated = cv::countNonZero(bad);
+  if (acc.saturated > 0 && acc.saturated == cv::countNonZero(interior))
+    throw InvalidInput("fit: every pixel is saturated or censored (in B or I, dilated by the kernel support)");
 
-  cv::Mat weight;  // CV_64F, > 0 where usable
-  if (options.objective == CrfObjective::seed_intensity) {
-    if (std::abs(options.initial_ratio - 1.0) < 1e-12) {  // Eq. 23: Γ = B − I ⊗ K
-      const cv::Mat gamma = blurInconsistency(blurred, intensityBlur(sharp_used, kernel));
-      weight = cv::Mat::zeros(sharp.size(), CV_64F);
-      gamma.copyTo(weight, gamma > options.tau1);
-    } else {  // Eq. 24: Imax − Imin
+  // Weights / selection.
+  cv::Mat weight(sharp.size(), CV_64F, cv::Scalar(0));
+  if (seed_objective) {
+    const bool unit_ratio = std::abs(options.initial_ratio - 1.0) < 1e-9;
+    if (unit_ratio) {
+      const cv::Mat gamma = prep.blurred_unit - convolve(sharp_used, kernel);  // Γ = B − I ⊗ K
+      weight.setTo(0);
+      gamma.copyTo(weight, gamma > options.tau1);  // Eq. 23
+    } else {
       const LocalRange range = localRange(sharp_used, kernel);
-      const cv::Mat span = range.max - range.min;
-      weight = cv::Mat::zeros(sharp.size(), CV_64F);
-      span.copyTo(weight, span > options.tau2);
+      const cv::Mat spread = range.max - range.min;
+      spread.copyTo(weight, spread > options.tau2);  // Eq. 24
     }
   } else {
-    const LocalRange range = localRange(blurred, kernel);
-    const cv::Mat span = range.max - range.min;
-    weight = cv::Mat::zeros(sharp.size(), CV_64F);
-    weight.setTo(1.0, span > options.edge_threshold);
+    const LocalRange range = localRange(prep.blurred_unit, kernel);
+    const cv::Mat spread = range.max - range.min;
+    spread.copyTo(weight, spread > options.edge_threshold);
   }
-  std::vector<cv::Point> usable;
+  std::vector<cv::Point> candidates_px;
   for (int y = inside.y; y < inside.y + inside.height; ++y)
     for (int x = inside.x; x < inside.x + inside.width; ++x) {
-      if (saturated.at<std::uint8_t>(y, x)) continue;
-      if (weight.at<double>(y, x) > 0) usable.emplace_back(x, y);
+      if (bad.at<std::uint8_t>(y, x)) continue;
+      if (weight.at<double>(y, x) > 0) candidates_px.emplace_back(x, y);
       else ++acc.low_weight;
     }
-  if (static_cast<int>(usable.size()) < options.min_pixels) {
-    std::ostringstream why;
-    why << "fit: the pair has no usable edges: " << usable.size() << " edge pixels (need at least "
-        << options.min_pixels << "; " << acc.low_weight << " low-weight, " << acc.saturated << " saturated, "
-        << acc.border << " border of " << acc.total << "). The sharp and blurred images must show edges "
-        << "(Claim 1: flat regions carry no information about the CRF)";
-    throw InvalidInput(why.str());
+  if (options.max_pixels > 0 && static_cast<int>(candidates_px.size()) > options.max_pixels) {
+    const double step = double(candidates_px.size()) / options.max_pixels;
+    std::vector<cv::Point> sub;
+    sub.reserve(options.max_pixels);
+    for (int i = 0; i < options.max_pixels; ++i) sub.push_back(candidates_px[static_cast<std::size_t>(i * step)]);
+    acc.subsampled = static_cast<int>(candidates_px.size() - sub.size());
+    candidates_px = std::move(sub);
   }
-  if (options.objective != CrfObjective::seed_intensity && options.max_pixels > 0 &&
-      static_cast<int>(usable.size()) > options.max_pixels) {
-    std::mt19937 rng(12345);
-    std::shuffle(usable.begin(), usable.end(), rng);
-    acc.subsampled = static_cast<int>(usable.size()) - options.max_pixels;
-    usable.resize(options.max_pixels);
-    std::sort(usable.begin(), usable.end(), [](const cv::Point& a, const cv::Point& b) {
-      return a.y != b.y ? a.y < b.y : a.x < b.x;
-    });
-  }
-  acc.used = static_cast<int>(usable.size());
+  prep.pixels = std::move(candidates_px);
+  acc.used = static_cast<int>(prep.pixels.size());
   acc.used_mask = cv::Mat::zeros(sharp.size(), CV_8U);
-  prep.pixels = usable;
-  for (const auto& p : usable) {
-    acc.used_mask.at<std::uint8_t>(p) = 255;
-    prep.seed_weight.push_back(weight.at<double>(p));
-    prep.fold.push_back(((p.x / 16) + (p.y / 16)) % 2);
-    prep.b_value.push_back(pixelValue(prep.blurred, p.y, p.x));
-    prep.b_lo.push_back(prep.blurred.lo.at<std::uint16_t>(p));
-    prep.b_frac.push_back(prep.blurred.frac.empty() ? 0.0 : prep.blurred.frac.at<float>(p));
+  for (const auto& p : prep.pixels) acc.used_mask.at<std::uint8_t>(p) = 255;
+  if (acc.used < options.min_pixels)
+    throw InvalidInput("fit: no usable edges: only " + std::to_string(acc.used) + " usable edge pixels (need " +
+                       std::to_string(options.min_pixels) + "); the pair needs blurred edges away from saturation");
+  for (const auto& p : prep.pixels) prep.seed_weight.push_back(weight.at<double>(p));
+
+  // Noise debias operator.
+  NoiseDebias debias;
+  const bool use_debias = options.noise == NoiseHandling::debias && (sigma > 0 || !options.noise_sigma_per_level.empty());
+  if (use_debias) {
+    NoiseDebiasOptions dopt;
+    dopt.levels = L;
+    dopt.sigma = std::min(sigma, 0.5);
+    dopt.sigma_per_level = options.noise_sigma_per_level;
+    dopt.regularization = options.debias_regularization;
+    debias = NoiseDebias(dopt);
+  }
+  const bool debias_active = use_debias && !debias.identity();
+  // the noise transition matrix (for the CUE variances) also without debiasing
+  NoiseDebias noise_only;
+  const NoiseDebias* noise_t = nullptr;
+  if (debias_active) noise_t = &debias;
+  else if (!seed_objective && options.noise == NoiseHandling::none && sigma * (L - 1) >= 0.05) {
+    NoiseDebiasOptions dopt;
+    dopt.levels = L;
+    dopt.sigma = std::min(sigma, 0.5);
+    dopt.sigma_per_level = options.noise_sigma_per_level;
+    noise_only = NoiseDebias(dopt);
+    noise_t = &noise_only;
   }
   result.timings.prepare_s = secondsSince(t_start);
-  report(0.1, "mixtures");
-
-  const auto t_mix = Clock::now();
-  prep.mixture = LevelMixture::build(prep.sharp, kernel, prep.pixels);
-  result.mixture_nonzeros = prep.mixture.nonZeros();
-  result.timings.mixture_s = secondsSince(t_mix);
+  report(0.1, "prepare");
 
   const Curve ggcm_curve(Curve::kGgcm, L, options.ggcm_degree);
   const Curve emor_curve(Curve::kEmor, L, options.emor_terms);
   const bool want_ggcm = options.model != CrfModelChoice::emor;
   const bool want_emor = options.model != CrfModelChoice::ggcm;
-  const int n_eval = options.max_evaluations;
-  double ratio = options.initial_ratio;
   std::vector<CrfCandidate> candidates;
-
   const auto t_opt = Clock::now();
-  if (options.objective == CrfObjective::instrumental) {
-    // Errors in variables by instrumental variables (GMM). In the irradiance domain the residual
-    //   r_p(φ) = φ(B_p) − r Σ_v w_p(v) (Rφ)(x_v)
-    // has zero mean at the true φ (the debiased mixture is unbiased, B is noise-free), and is linear in the
-    // EMoR coefficients. Instruments built from B alone (independent of I's noise): H_j(B_p) and
-    // (H_j(B) ⊗ K)(p) for the EMoR functions H_0..H_K. Two-stage least squares with weights ω_p = 1/φ'(B_p)²
-    // (intensity-domain scale, from the previous iterate). No trivial solution: φ(0) = 0, φ(1) = 1 are built in.
-    const int K = options.emor_terms;
-    const int n = static_cast<int>(prep.pixels.size());
-    std::vector<std::vector<double>> hb(K + 1, std::vector<double>(n)), mix(K + 1, std::vector<double>(n));
-    std::vector<std::vector<double>> inst;
-    for (int j = 0; j <= K; ++j) {
-      const std::vector<double> hj(emor_curve.emorLevels(j), emor_curve.emorLevels(j) + L);
-      for (int i = 0; i < n; ++i) hb[j][i] = phiAtB(prep, hj, i);
-      const std::vector<double> gj = prep.debias.apply(hj);
-      prep.mixture.mix(gj, mix[j]);
-      // instruments
-      cv::Mat hbimg(blurred.size(), CV_64F);
-      for (int y = 0; y < blurred.rows; ++y)
-        for (int x = 0; x < blurred.cols; ++x) {
-          const int lo = prep.blurred.lo.at<std::uint16_t>(y, x);
-          const double t = prep.blurred.frac.empty() ? 0.0 : prep.blurred.frac.at<float>(y, x);
-          hbimg.at<double>(y, x) = t > 0 ? (1 - t) * hj[lo] + t * hj[lo + 1] : hj[lo];
-        }
-      const cv::Mat conv = convolve(hbimg, kernel);
-      std::vector<double> z1(n), z2(n);
-      for (int i = 0; i < n; ++i) {
-        z1[i] = hb[j][i];
-        z2[i] = conv.at<double>(prep.pixels[i]);
-      }
-      inst.push_back(std::move(z1));
-      inst.push_back(std::move(z2));
-    }
-    const int J = static_cast<int>(inst.size());
-    std::vector<double> phi_levels(L);
-    for (int v = 0; v < L; ++v) phi_levels[v] = std::pow(double(v) / (L - 1), 2.2);
-    std::vector<double> omega(n, 1.0);
-    auto setWeights = [&](const std::vector<double>& f) {
-      for (int i = 0; i < n; ++i) {
-        const int lo = prep.b_lo[i];
-        const int a = std::max(0, lo - 2), b = std::min(L - 1, lo + 2);
-        const double slope = (f[b] - f[a]) / (double(b - a) / (L - 1));
-        const double s = std::max(slope, 0.05);
-        omega[i] = 1.0 / (s * s);
-      }
-    };
-    // 2SLS on the pixels of `fold` (−1: all) at ratio r; returns the EMoR coefficients.
-    auto solve = [&](int fold, double r) {
-      Eigen::MatrixXd G = Eigen::MatrixXd::Zero(J, K), S = Eigen::MatrixXd::Zero(J, J);
-      Eigen::VectorXd g = Eigen::VectorXd::Zero(J);
-      Eigen::VectorXd z(J);
-      for (int i = 0; i < n; ++i) {
-        if (fold >= 0 && prep.fold[i] != fold) continue;
-        for (int j = 0; j < J; ++j) z[j] = inst[j][i];
-        const double alpha = hb[0][i] - r * mix[0][i];
-        for (int k = 1; k <= K; ++k) G.col(k - 1) += omega[i] * z * (hb[k][i] - r * mix[k][i]);
-        g += omega[i] * z * alpha;
-        S += omega[i] * omega[i] * z * z.transpose();
-      }
-      S.diagonal().array() += 1e-12 * std::max(1e-300, S.trace() / J);
-      const Eigen::MatrixXd W = S.ldlt().solve(Eigen::MatrixXd::Identity(J, J));
-      Eigen::MatrixXd A = G.transpose() * W * G;
-      A.diagonal().array() += 1e-12 * std::max(1e-300, A.trace() / K);
-      const Eigen::VectorXd c = A.ldlt().solve(-(G.transpose() * W * g));
-      return std::vector<double>(c.data(), c.data() + K);
-    };
-    // GMM criterion of any φ (on the level grid) on a fold: mean moment norm ḡᵀ W ḡ.
-    auto criterion = [&](const std::vector<double>& f, int fold, double r) {
-      std::vector<double> gf = prep.debias.apply(f), m(n);
-      prep.mixture.mix(gf, m);
-      Eigen::VectorXd g = Eigen::VectorXd::Zero(J), z(J);
-      Eigen::MatrixXd S = Eigen::MatrixXd::Zero(J, J);
-      double wsum = 0;
-      for (int i = 0; i < n; ++i) {
-        if (fold >= 0 && prep.fold[i] != fold) continue;
-        for (int j = 0; j < J; ++j) z[j] = inst[j][i];
-        const double res = phiAtB(prep, f, i) - r * m[i];
-        g += omega[i] * z * res;
-        S += omega[i] * omega[i] * z * z.transpose();
-        wsum += omega[i];
-      }
-      if (wsum <= 0) return std::numeric_limits<double>::quiet_NaN();
-      S.diagonal().array() += 1e-12 * std::max(1e-300, S.trace() / J);
-      return g.dot(S.ldlt().solve(g));
-    };
-    auto monotoneEmor = [&](std::vector<double> c) {
-      if (isValid(EmorModel{c})) return c;
-      emor::FitOptions eo;
-      eo.terms = K;
-      eo.enforce_monotone = true;
-      const auto fit = emor::fitInverse(sampleInverse(EmorModel{c}, kGrid), eo);
-      return fit.model.coefficients;
-    };
-    auto projectGgcm = [&](const std::vector<double>& c) {
-      ggcm::FitOptions go;
-      go.degree = options.ggcm_degree;
-      return ggcm::fitInverse(sampleInverse(EmorModel{c}, kGrid), go);
-    };
-    std::vector<double> c(K, 0.0);
-    for (int round = 0; round < options.irls_rounds + 1; ++round) {
-      setWeights(phi_levels);
-      const int rounds = options.fit_ratio ? options.ratio_rounds : 1;
-      for (int rr = 0; rr < rounds; ++rr) {
-        c = monotoneEmor(solve(-1, ratio));
-        ++result.iterations;
-        std::vector<double> f;
-        emor_curve.values(c.data(), f, nullptr);
-        phi_levels = f;
-        if (!options.fit_ratio) break;
-        // r by IV (Eq. 25 with the noise-free instrument s_p = (φ(B) ⊗ K)(p) in place of the noisy mixture)
-        std::vector<double> gf = prep.debias.apply(f), m(n);
-        prep.mixture.mix(gf, m);
-        cv::Mat fb(blurred.size(), CV_64F);
-        for (int y = 0; y < blurred.rows; ++y)
-          for (int x = 0; x < blurred.cols; ++x) {
-            const int lo = prep.blurred.lo.at<std::uint16_t>(y, x);
-            const double t = prep.blurred.frac.empty() ? 0.0 : prep.blurred.frac.at<float>(y, x);
-            fb.at<double>(y, x) = t > 0 ? (1 - t) * f[lo] + t * f[lo + 1] : f[lo];
-          }
-        const cv::Mat sconv = convolve(fb, kernel);
-        double num = 0, den = 0;
-        for (int i = 0; i < n; ++i) {
-          const double s = sconv.at<double>(prep.pixels[i]);
-          num += omega[i] * s * phiAtB(prep, f, i);
-          den += omega[i] * s * m[i];
-        }
-        const double next = den > 0 ? std::clamp(num / den, 0.05, 20.0) : ratio;
-        const bool converged = std::abs(next - ratio) < 1e-7 * ratio;
-        ratio = next;
-        if (converged) break;
-      }
-      report(0.1 + 0.8 * (round + 1) / (options.irls_rounds + 1), "optimise");
-    }
-    const bool cv_needed = options.model == CrfModelChoice::automatic;
-    auto levelsOf = [&](const ResponseModel& model) {
-      std::vector<double> f(L);
-      for (int v = 0; v < L; ++v) f[v] = evaluateInverse(model, double(v) / (L - 1));
-      return f;
-    };
-    double crit_emor = 0, crit_ggcm = 0;
-    if (cv_needed) {
-      for (int fold = 0; fold < 2; ++fold) {
-        const std::vector<double> cf = monotoneEmor(solve(fold, ratio));
-        crit_emor += criterion(levelsOf(EmorModel{cf}), 1 - fold, ratio);
-        const auto gp = projectGgcm(cf);
-        crit_ggcm += gp.valid ? criterion(levelsOf(gp.model), 1 - fold, ratio) : std::numeric_limits<double>::infinity();
-      }
-    }
-    if (want_emor) {
-      CrfCandidate e;
-      e.kind = "emor";
-      e.model = EmorModel{c};
-      e.valid = isValid(e.model);
-      e.ratio = ratio;
-      e.energy = criterion(levelsOf(e.model), -1, ratio);
-      e.criterion = cv_needed ? crit_emor : e.energy;
-      candidates.push_back(e);
-    }
-    if (want_ggcm) {
-      const auto gp = projectGgcm(c);
-      CrfCandidate g;
-      g.kind = "ggcm";
-      g.model = gp.model;
-      g.valid = gp.valid && isValid(g.model);
-      g.ratio = ratio;
-      g.energy = criterion(levelsOf(g.model), -1, ratio);
-      g.criterion = cv_needed ? crit_ggcm : g.energy;
-      candidates.push_back(g);
-    }
-  } else
-  if (options.objective != CrfObjective::corrected_irradiance) {
-    const bool aware = options.objective == CrfObjective::noise_aware_intensity;
+
+  if (seed_objective) {
+    const auto t_mix = Clock::now();
+    const LevelMixture mixture = LevelMixture::build(prep.sharp, kernel, prep.pixels);
+    result.mixture_nonzeros = mixture.nonZeros();
+    result.timings.mixture_s = secondsSince(t_mix);
+    SeedObjective objective{&prep, &mixture, nullptr, debias_active ? &debias : nullptr, {}, options.initial_ratio, 1};
+    for (const auto& p : prep.pixels) objective.b_value.push_back(pixelValue(prep.blurred, p));
     double wsum = 0;
     for (double w : prep.seed_weight) wsum += w * w;
+    objective.weight_sum = wsum;
     for (const Curve* curve : {&ggcm_curve, &emor_curve}) {
       if ((curve == &ggcm_curve && !want_ggcm) || (curve == &emor_curve && !want_emor)) continue;
-      SeedObjective objective{&prep, curve, debias, options.initial_ratio, wsum, {}, {}, {}};
-      objective.variance_correction = aware && debias && !prep.debias.identity();
+      objective.curve = curve;
+      objective.ratio = options.initial_ratio;
       std::vector<double> x = curve == &ggcm_curve ? ggcm::fromGamma(2.2, options.ggcm_degree).alpha
                                                    : std::vector<double>(curve->dims(), 0.0);
-      if (aware && options.multi_starts > 1) {  // best of a few starts by energy
-        double best = objective.energy(x);
-        const std::vector<double> gammas{1.6, 3.0, 1.0};
-        for (int k = 0; k + 1 < options.multi_starts && k < 3; ++k) {
-          const std::vector<double> cand = curve == &ggcm_curve ? ggcm::fromGamma(gammas[k], options.ggcm_degree).alpha
-                                                                : std::vector<double>(curve->dims(), 0.0);
-          if (curve != &ggcm_curve) break;
-          const double e = objective.energy(cand);
-          if (e < best) { best = e; x = cand; }
-        }
-      }
       int evaluations = 0;
-      if (aware && options.fit_ratio) {
-        // crfcal: φ and r jointly (alternating φ-steps and Eq. 25 crawls along the φ/r valley); log r is the
-        // extra parameter, started from the noise-corrected Eq. 25 value.
-        objective.ratio = std::clamp(objective.ratioStep(x), 0.5 * options.initial_ratio, 2.0 * options.initial_ratio);
-        std::vector<double> xr = x;
-        xr.push_back(std::log(objective.ratio));
-        const std::size_t dims = x.size();
-        auto joint = [&](const std::vector<double>& v, std::vector<double>* g) {
-          SeedObjective local = objective;
-          local.ratio = std::exp(v[dims]);
-          const std::vector<double> params(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(dims));
-          const double value = local.energy(params);
-          if (g) {
-            std::vector<double> vp = v;
-            for (std::size_t j = 0; j < v.size(); ++j) {
-              const double hs = 1e-6 * std::max(1.0, std::abs(v[j]));
-              vp[j] = v[j] + hs;
-              local.ratio = std::exp(vp[dims]);
-              const double a = local.energy(std::vector<double>(vp.begin(), vp.begin() + static_cast<std::ptrdiff_t>(dims)));
-              vp[j] = v[j] - hs;
-              local.ratio = std::exp(vp[dims]);
-              const double b = local.energy(std::vector<double>(vp.begin(), vp.begin() + static_cast<std::ptrdiff_t>(dims)));
-              vp[j] = v[j];
-              (*g)[j] = (a - b) / (2 * hs);
-            }
-          }
-          return value;
-        };
-        const Minimum m = minimise(options.optimizer, xr, joint, n_eval, 0.05);
-        evaluations += m.evaluations;
-        x.assign(m.x.begin(), m.x.begin() + static_cast<std::ptrdiff_t>(dims));
-        objective.ratio = std::exp(m.x[dims]);
-        ++result.iterations;
-      }
-      const int rounds = (aware && options.fit_ratio) ? 0 : (options.fit_ratio ? options.ratio_rounds : 1);
+      const int rounds = options.fit_ratio ? options.ratio_rounds : 1;
       for (int round = 0; round < rounds; ++round) {
-        const Minimum m = minimise(options.optimizer, x,
-                                   [&](const std::vector<double>& v, std::vector<double>* g) { return objective(v, g); },
-                                   n_eval, 0.05);
+        const Minimum m = nelderMead(x, [&](const std::vector<double>& v) { return objective.energy(v); },
+                                     options.max_evaluations, 0.05);
         x = m.x;
         evaluations += m.evaluations;
         ++result.iterations;
         report(0.1 + 0.8 * (round + 1) / rounds, "optimise");
         if (!options.fit_ratio) break;
         const double next = std::clamp(objective.ratioStep(x), 0.05, 20.0);
-        const bool converged = std::abs(next - objective.ratio) < 1e-6 * objective.ratio;
+        const bool converged = std::abs(next - objective.ratio) < 1e-4 * objective.ratio;
         objective.ratio = next;
         if (converged) break;
       }
@@ -1057,146 +1039,184 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp_in, const cv::Mat& blurred_in, c
       candidates.push_back(c);
     }
   } else {
-    // Iteratively reweighted corrected objective. Round 0: ω = 1 (bins carry the slope); later rounds: ω_p =
-    // (bin secant / φ'(B_p))² of the previous iterate.
-    const int bins = L > 256 ? 1 : 8;
-    std::vector<double> phi_levels;  // previous iterate on the level grid
-    std::vector<double> omega(prep.pixels.size(), 1.0);
-    QuadraticForms forms;
-    std::vector<double> x_ggcm, x_emor;
-    double e_ggcm = std::numeric_limits<double>::infinity(), e_emor = e_ggcm;
-    bool v_ggcm = false, v_emor = false;
+    // Instruments from B alone: B level bin × bins of B's local min and max over the support (position_bins
+    // each). Only non-empty bins are kept (compact ids).
+    const int P = options.position_bins, K = options.level_bins;
+    const LocalRange brange = localRange(prep.blurred_unit, kernel);
+    std::vector<int> bin_of(prep.pixels.size());
+    std::vector<int> raw_id(prep.pixels.size());
+    for (std::size_t i = 0; i < prep.pixels.size(); ++i) {
+      const cv::Point p = prep.pixels[i];
+      const double b = prep.blurred_unit.at<double>(p);
+      const int kb = std::clamp(static_cast<int>(b * K), 0, K - 1);
+      const double lo = brange.min.at<double>(p), hi = brange.max.at<double>(p);
+      const int pl = std::clamp(static_cast<int>(lo * P), 0, P - 1);
+      const int ph = std::clamp(static_cast<int>(hi * P), 0, P - 1);
+      raw_id[i] = (kb * P + pl) * P + ph;
+    }
+    std::vector<int> compact(static_cast<std::size_t>(K) * P * P, -1);
+    std::vector<int> bin_level_bin;
+    for (std::size_t i = 0; i < raw_id.size(); ++i) {
+      int& c = compact[raw_id[i]];
+      if (c < 0) {
+        c = static_cast<int>(bin_level_bin.size());
+        bin_level_bin.push_back(raw_id[i] / (P * P));
+      }
+      bin_of[i] = c;
+    }
+    const int bins = static_cast<int>(bin_level_bin.size());
+    const auto t_mix = Clock::now();
+    const Moments moments = buildMoments(prep, bin_of, bins, threads, &result.mixture_nonzeros);
+    result.timings.mixture_s = secondsSince(t_mix);
+    std::vector<double> centre(bins);
+    for (int k = 0; k < bins; ++k) centre[k] = (bin_level_bin[k] + 0.5) / K;
+    const Eigen::MatrixXd* rt = debias_active ? &debias.matrix() : nullptr;
     {
-      std::vector<double> g22(L);
-      for (int v = 0; v < L; ++v) g22[v] = std::pow(double(v) / (L - 1), 2.2);
-      phi_levels = g22;
+      int nonempty = 0;
+      for (int k = 0; k < bins; ++k) nonempty += (moments.count[0][k] + moments.count[1][k]) > 0;
+      result.moment_bins = nonempty;
     }
-    auto ggcmStarts = [&](const std::vector<double>* extra) {
-      std::vector<std::vector<double>> starts;
-      if (!x_ggcm.empty()) starts.push_back(x_ggcm);
-      if (extra) starts.push_back(*extra);
-      for (double gamma : {2.2, 1.6, 3.0, 1.0}) starts.push_back(ggcm::fromGamma(gamma, options.ggcm_degree).alpha);
-      if (static_cast<int>(starts.size()) > options.multi_starts) starts.resize(options.multi_starts);
-      return starts;
-    };
-    auto ratioStep = [&](const std::vector<double>& f, double current) {
-      // r minimising Σ_b s_b fᵀ(Q0 + r Q1 + r² Q2) f
-      QuadraticObjective probe{nullptr, nullptr, {}, {}};
-      (void)probe;
-      Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
-      double a = 0, b = 0;
-      for (int bin = 0; bin < forms.bins; ++bin) {
-        const int lo = forms.edge[bin], hi = forms.edge[bin + 1];
-        const double hb = double(hi - lo) / (L - 1);
-        const double delta = std::max(f[hi] - f[lo], 1e-9);
-        const double s = hb * hb / (delta * delta);
-        for (int fold = 0; fold < 2; ++fold) {
-          a += s * fv.dot(forms.q2[fold][bin] * fv);
-          b += s * fv.dot(forms.q1[fold][bin] * fv);
-        }
+    // Weights: ω_k = 1 / φ'(b_k)² (intensity-domain residuals, Eq. 21 to first order), φ' from a reference φ
+    // (γ 2.2 in the first round, the fit afterwards); common to all candidates so energies compare.
+    auto weightsFor = [&](const std::vector<double>& f) {
+      Eigen::VectorXd omega(bins);
+      for (int k = 0; k < bins; ++k) {
+        const double b = centre[k];
+        const int v = std::clamp(static_cast<int>(std::lround(b * (L - 1))), 1, L - 2);
+        const int span = std::max(1, (L - 1) / K);
+        const int v0 = std::max(0, v - span), v1 = std::min(L - 1, v + span);
+        const double slope = (f[v1] - f[v0]) / (double(v1 - v0) / (L - 1));
+        omega[k] = 1.0 + 0.0 * slope;  // the slope enters the residual itself (MomentSystem)
       }
-      return a > 0 ? std::clamp(-b / (2 * a), 0.05, 20.0) : current;
+      return omega;
     };
-    for (int round = 0; round < options.irls_rounds; ++round) {
-      if (round > 0) {
-        for (std::size_t i = 0; i < omega.size(); ++i) {
-          const int lo = prep.b_lo[i];
-          const int bin = forms.binOf(lo);
-          const int e0 = forms.edge[bin], e1 = forms.edge[bin + 1];
-          const double secant = (phi_levels[e1] - phi_levels[e0]) / double(e1 - e0);
-          const int j0 = std::max(0, lo - 1), j1 = std::min(L - 1, lo + 1);
-          const double local = (phi_levels[j1] - phi_levels[j0]) / double(j1 - j0);
-          const double ratio_w = secant / std::max(local, 0.2 * secant);
-          omega[i] = std::clamp(ratio_w * ratio_w, 0.04, 25.0);
-        }
+    std::vector<double> reference = levelValues(GammaModel{2.2}, L);
+    ModelFit fit_g, fit_e;
+    double ratio = options.initial_ratio;
+    const int lm_iterations = std::max(20, options.max_evaluations / 10);
+    MomentSystem full;
+    for (int round = 0; round < 1; ++round) {
+      const Eigen::VectorXd omega = weightsFor(reference);
+      full = makeSystem(moments, rt, -1, omega, K, bin_level_bin);
+      if (want_emor || want_ggcm) {
+        fit_e = fitModelMoments(emor_curve, full, {}, ratio, options.fit_ratio, lm_iterations);
+        result.evaluations += fit_e.evaluations;
+        result.iterations += fit_e.iterations;
       }
-      const auto t_forms = Clock::now();
-      forms = buildForms(prep, omega, threads, bins);
-      result.timings.mixture_s += secondsSince(t_forms);
-      const int rounds = options.fit_ratio ? options.ratio_rounds : 1;
-      for (int rr = 0; rr < rounds; ++rr) {
-        const BinnedForm form = formAt(forms, ratio, -1);
-        std::vector<double> emor_start_alpha;
-        {  // EMoR (also seeds the GGCM search)
-          const FitOutcome e = fitEmor(emor_curve, form, phi_levels, options);
-          result.evaluations += e.evaluations;
-          x_emor = e.x;
-          e_emor = e.value;
-          v_emor = e.valid;
-          if (want_ggcm && e.valid) {
-            ggcm::FitOptions go;
-            go.degree = options.ggcm_degree;
-            const auto projected = ggcm::fitInverse(sampleInverse(EmorModel{e.x}, kGrid), go);
-            if (projected.valid) emor_start_alpha = projected.model.alpha;
+      if (want_ggcm) {
+        std::vector<std::vector<double>> starts;
+        if (!fit_g.x.empty()) starts.push_back(fit_g.x);
+        if (fit_e.valid) {
+          ggcm::FitOptions go;
+          go.degree = options.ggcm_degree;
+          const auto projected = ggcm::fitInverse(sampleInverse(EmorModel{fit_e.x}, kGrid), go);
+          if (projected.valid) starts.push_back(projected.model.alpha);
+        }
+        for (double gamma : {2.2, 1.6, 3.0, 1.0}) starts.push_back(ggcm::fromGamma(gamma, options.ggcm_degree).alpha);
+        if (static_cast<int>(starts.size()) > options.multi_starts + (fit_g.x.empty() ? 0 : 1))
+          starts.resize(options.multi_starts + (fit_g.x.empty() ? 0 : 1));
+        const double r_start = fit_e.valid ? fit_e.ratio : ratio;
+        if (options.optimizer == CrfOptimizer::nelder_mead) {
+          // ablation: Nelder–Mead on the moment energy with r profiled out (closed form)
+          ModelFit nm;
+          for (const auto& s : starts) {
+            auto energy = [&](const std::vector<double>& x) {
+              std::vector<double> f;
+              if (!ggcm_curve.values(x.data(), f, nullptr) || !monotone(f)) return 1e6;
+              Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
+              const Eigen::VectorXd hf = full.h * fv, nf = full.n * fv;
+              const double r = options.fit_ratio ? std::clamp(hf.dot(nf) / std::max(hf.squaredNorm(), 1e-300), 0.05, 20.0) : ratio;
+              const double e = momentEnergy(full, f, r);
+              return std::isfinite(e) ? e : 1e6;
+            };
+            const Minimum m = nelderMead(s, energy, options.max_evaluations, 0.05, 1e-12);
+            nm.evaluations += m.evaluations;
+            if (m.value < nm.energy) {
+              nm.energy = m.value;
+              nm.x = m.x;
+            }
           }
+          std::vector<double> f;
+          ggcm_curve.values(nm.x.data(), f, nullptr);
+          Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
+          const Eigen::VectorXd hf = full.h * fv, nf = full.n * fv;
+          nm.ratio = options.fit_ratio ? std::clamp(hf.dot(nf) / std::max(hf.squaredNorm(), 1e-300), 0.05, 20.0) : ratio;
+          nm.valid = isValid(ggcm_curve.model(nm.x));
+          fit_g = nm;
+        } else {
+          fit_g = fitModelMoments(ggcm_curve, full, starts, r_start, options.fit_ratio, lm_iterations);
         }
-        if (want_ggcm) {
-          QuadraticObjective objective{&ggcm_curve, &form, {}, {}};
-          const FitOutcome g = fitGgcm(
-              ggcm_curve, [&](const std::vector<double>& v, std::vector<double>* gr) { return objective(v, gr); },
-              ggcmStarts(emor_start_alpha.empty() ? nullptr : &emor_start_alpha), options.optimizer, n_eval,
-              [&](const std::vector<double>& v) { return objective.plain(v); });
-          result.evaluations += g.evaluations;
-          x_ggcm = g.x;
-          e_ggcm = g.value;
-          v_ggcm = g.valid;
+        result.evaluations += fit_g.evaluations;
+        result.iterations += fit_g.iterations;
+      }
+      // reference for the next weights: the better valid fit
+      const bool use_g = want_ggcm && fit_g.valid && (!fit_e.valid || fit_g.energy <= fit_e.energy || !want_emor);
+      if (use_g) reference = levelValues(ggcm_curve.model(fit_g.x), L), ratio = fit_g.ratio;
+      else if (fit_e.valid) reference = levelValues(emor_curve.model(fit_e.x), L), ratio = fit_e.ratio;
+      report(0.1 + 0.4 * (round + 1), "optimise");
+    }
+    const Eigen::VectorXd omega = weightsFor(reference);
+    const bool corrected = options.variance_correction;
+    if (corrected) {
+      CueModel cue;
+      if (noise_t) cue.t = &noise_t->transition();
+      if (debias_active) cue.r = &debias.matrix();
+      if (want_emor) {
+        const ModelFit e = fitModelCue(emor_curve, full, cue, {fit_e.x, std::vector<double>(emor_curve.dims(), 0.0)},
+                                       fit_e.x.empty() ? ratio : fit_e.ratio, options.fit_ratio, lm_iterations);
+        if (e.valid) fit_e = e;
+        result.evaluations += e.evaluations;
+      }
+      if (want_ggcm) {
+        std::vector<std::vector<double>> starts{fit_g.x};
+        if (fit_e.valid) {
+          ggcm::FitOptions go;
+          go.degree = options.ggcm_degree;
+          const auto projected = ggcm::fitInverse(sampleInverse(EmorModel{fit_e.x}, kGrid), go);
+          if (projected.valid) starts.push_back(projected.model.alpha);
         }
-        ++result.iterations;
-        report(0.1 + 0.8 * (round * rounds + rr + 1) / (options.irls_rounds * rounds), "optimise");
-        // the better valid model (of those asked for) drives r and the next weights
-        const bool use_ggcm = want_ggcm && v_ggcm && (!want_emor || !v_emor || e_ggcm <= e_emor);
-        const Curve& curve = use_ggcm ? ggcm_curve : emor_curve;
-        const std::vector<double>& x = use_ggcm ? x_ggcm : x_emor;
-        std::vector<double> f;
-        if (x.empty() || !curve.values(x.data(), f, nullptr) || !monotone(f)) break;
-        phi_levels = f;
-        if (!options.fit_ratio) break;
-        const double next = ratioStep(f, ratio);
-        const bool converged = std::abs(next - ratio) < 1e-7 * ratio;
-        ratio = next;
-        if (converged) break;
+        const ModelFit g = fitModelCue(ggcm_curve, full, cue, starts, fit_g.x.empty() ? ratio : fit_g.ratio,
+                                       options.fit_ratio, lm_iterations);
+        if (g.valid) fit_g = g;
+        result.evaluations += g.evaluations;
       }
     }
-    // Candidates with 2-fold cross-validated energies at the final r and weights.
-    auto crossValidate = [&](const Curve& curve, const std::vector<double>& x_full) {
-      double total = 0, weight = 0;
+    // energies are per unit weight: (cost · weight) / weight — LM cost is already normalised
+    const bool cross_validate = options.model == CrfModelChoice::automatic && !corrected;
+    auto crossValidate = [&](const Curve& curve, const ModelFit& whole) {
+      double total = 0;
       for (int fold = 0; fold < 2; ++fold) {
-        const BinnedForm fit_form = formAt(forms, ratio, fold), test_form = formAt(forms, ratio, 1 - fold);
-        if (forms.weight[0] <= 0 || forms.weight[1] <= 0) return std::numeric_limits<double>::quiet_NaN();
-        std::vector<double> x;
-        if (curve.kind() == Curve::kEmor) {
-          x = fitEmor(curve, fit_form, phi_levels, options).x;
-        } else {
-          QuadraticObjective objective{&curve, &fit_form, {}, {}};
-          x = fitGgcm(curve, [&](const std::vector<double>& v, std::vector<double>* gr) { return objective(v, gr); },
-                      {x_full}, options.optimizer, n_eval, [&](const std::vector<double>& v) { return objective.plain(v); })
-                  .x;
-        }
-        QuadraticObjective test{&curve, &test_form, {}, {}};
-        total += test.plain(x) * test_form.weight;
-        weight += test_form.weight;
+        const MomentSystem train = makeSystem(moments, rt, fold, omega, K, bin_level_bin);
+        const MomentSystem test = makeSystem(moments, rt, 1 - fold, omega, K, bin_level_bin);
+        if (train.h.rows() == 0 || test.h.rows() == 0) return std::numeric_limits<double>::quiet_NaN();
+        const ModelFit f = fitModelMoments(curve, train, {whole.x}, whole.ratio, options.fit_ratio, lm_iterations);
+        if (f.x.empty()) return kInf;
+        std::vector<double> fv;
+        if (!curve.values(f.x.data(), fv, nullptr)) return kInf;
+        total += momentEnergy(test, fv, f.ratio) * test.weight;
       }
-      return total / weight;
+      return total;
     };
-    const bool cross_validate = options.model == CrfModelChoice::automatic;
-    if (want_emor && !x_emor.empty()) {
+    if (want_emor && !fit_e.x.empty()) {
       CrfCandidate c;
       c.kind = "emor";
-      c.model = emor_curve.model(x_emor);
-      c.valid = v_emor && isValid(c.model);
-      c.ratio = ratio;
-      c.energy = e_emor;
-      c.criterion = cross_validate ? crossValidate(emor_curve, x_emor) : e_emor;
+      c.model = emor_curve.model(fit_e.x);
+      c.valid = fit_e.valid;
+      c.ratio = fit_e.ratio;
+      c.energy = fit_e.energy;
+      c.criterion = cross_validate && c.valid ? crossValidate(emor_curve, fit_e) : c.energy;
+      c.evaluations = fit_e.evaluations;
       candidates.push_back(c);
     }
-    if (want_ggcm && !x_ggcm.empty()) {
+    if (want_ggcm && !fit_g.x.empty()) {
       CrfCandidate c;
       c.kind = "ggcm";
-      c.model = ggcm_curve.model(x_ggcm);
-      c.valid = v_ggcm && isValid(c.model);
-      c.ratio = ratio;
-      c.energy = e_ggcm;
-      c.criterion = cross_validate ? crossValidate(ggcm_curve, x_ggcm) : e_ggcm;
+      c.model = ggcm_curve.model(fit_g.x);
+      c.valid = fit_g.valid;
+      c.ratio = fit_g.ratio;
+      c.energy = fit_g.energy;
+      c.criterion = cross_validate && c.valid ? crossValidate(ggcm_curve, fit_g) : c.energy;
+      c.evaluations = fit_g.evaluations;
       candidates.push_back(c);
     }
   }
@@ -1215,8 +1235,10 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp_in, const cv::Mat& blurred_in, c
     result.energy = best->energy;
     result.chosen = best->kind;
     if (candidates.size() == 1) result.choice_reason = std::string("only ") + best->kind + " was fitted";
-    else if (options.objective == CrfObjective::corrected_irradiance)
-      result.choice_reason = "lower 2-fold cross-validated corrected energy";
+    else if (options.model == CrfModelChoice::automatic && !seed_objective)
+      result.choice_reason = options.variance_correction
+                                 ? "lower CUE moment energy (chi-square per bin; equal parameter counts)"
+                                 : "lower 2-fold cross-validated moment energy";
     else result.choice_reason = "lower energy";
   } else {
     // never return an invalid curve: fall back to the γ = 2.2 start
@@ -1228,6 +1250,12 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp_in, const cv::Mat& blurred_in, c
   }
   result.candidates = std::move(candidates);
   result.inverse_crf = sampleInverse(result.model, kCurveSamples);
+  if (!isValid(TableModel{result.inverse_crf})) {  // belt and braces
+    result.model = ggcm::fromGamma(2.2, options.ggcm_degree);
+    result.inverse_crf = sampleInverse(result.model, kCurveSamples);
+    result.chosen = "fallback";
+    result.choice_reason = "the chosen curve failed validation; returned the gamma 2.2 start";
+  }
   result.timings.total_s = secondsSince(t_start);
   report(1.0, "done");
   return result;

@@ -1,5 +1,6 @@
 #include "crfcal/noise_debias.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/Cholesky>
@@ -12,14 +13,27 @@ void NoiseDebiasOptions::check() const {
   if (levels < 2 || levels > 4096) throw InvalidInput("noise debias: levels must be in [2, 4096]");
   if (!(sigma >= 0 && sigma < 1)) throw InvalidInput("noise debias: sigma must be in [0, 1)");
   if (!(regularization > 0)) throw InvalidInput("noise debias: regularization must be positive");
+  if (!sigma_per_level.empty()) {
+    if (static_cast<int>(sigma_per_level.size()) != levels)
+      throw InvalidInput("noise debias: sigma_per_level must have one entry per level");
+    for (double s : sigma_per_level)
+      if (!(s >= 0 && s < 1)) throw InvalidInput("noise debias: sigma_per_level entries must be in [0, 1)");
+  }
 }
 
 NoiseDebias::NoiseDebias(const NoiseDebiasOptions& options) {
   options.check();
   levels_ = options.levels;
-  sigma_ = options.sigma;
   const int n = levels_;
-  identity_ = sigma_ * (n - 1) < 0.05;  // below 1/20 of a level the bias is negligible
+  std::vector<double> sig(n, options.sigma);
+  if (!options.sigma_per_level.empty()) sig = options.sigma_per_level;
+  double mean = 0, largest = 0;
+  for (double s : sig) {
+    mean += s / n;
+    largest = std::max(largest, s);
+  }
+  sigma_ = mean;
+  identity_ = largest * (n - 1) < 0.05;  // below 1/20 of a level the bias is negligible
   if (identity_) {
     r_ = Eigen::MatrixXd::Identity(n, n);
     t_ = r_;
@@ -30,10 +44,11 @@ NoiseDebias::NoiseDebias(const NoiseDebiasOptions& options) {
   t_.resize(n, n);
   for (int c = 0; c < n; ++c) {
     const double x = c * step;
+    const double sc = std::max(sig[c], 1e-3 * step);
     for (int v = 0; v < n; ++v) {
       const double lo = v == 0 ? -1e9 : (v - 0.5) * step;
       const double hi = v == n - 1 ? 1e9 : (v + 0.5) * step;
-      t_(c, v) = cdf((hi - x) / sigma_) - cdf((lo - x) / sigma_);
+      t_(c, v) = cdf((hi - x) / sc) - cdf((lo - x) / sc);
     }
   }
   Eigen::MatrixXd d2 = Eigen::MatrixXd::Zero(n - 2, n);

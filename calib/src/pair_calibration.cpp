@@ -98,6 +98,7 @@ void PairCalibrationOptions::check() const {
   if (rounds < 0 || rounds > 10) throw InvalidInput("rounds must be in 0..10");
   if (!(saturated_frame_limit > 0 && saturated_frame_limit <= 1)) throw InvalidInput("saturated_frame_limit in (0,1]");
   if (max_fit_side < 128) throw InvalidInput("max_fit_side must be >= 128");
+  effects.check();
 }
 
 std::string PairCalibrationResult::summary() const {
@@ -110,6 +111,7 @@ std::string PairCalibrationResult::summary() const {
     text += buffer;
   }
   for (const auto& [name, fit] : fits) text += "\n" + name + ": " + fit.summary();
+  if (!effects.entries.empty()) text += "\n" + effects.summary();
   return text;
 }
 
@@ -274,6 +276,40 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   }
   result.timings["fit"] = fit_time;
   result.timings["kernel_phi_rounds"] = since(t0) - fit_time;
+
+  // Named effects on the residuals (effects.hpp); a detected effect's extended model supplies φ.
+  if (options.effects.enabled) {
+    const auto te = Clock::now();
+    report("effects", 0);
+    EffectInputs ei;
+    ei.channels = result.channels;
+    for (const auto& name : result.channels) {
+      cv::Mat s = plane(sharp_planes, name)(window).clone();
+      s.setTo(0, outside(window));
+      ei.sharp[name] = s;
+      ei.blurred[name] = plane(blurred_planes, name)(window);
+    }
+    ei.fits = result.fits;
+    ei.kernel = K;
+    ei.kernel_estimated = result.kernel_estimated;
+    ei.exif_ratio = options.fit.initial_ratio;
+    ei.centre = cv::Point2d((blurred.cols - 1) / 2.0 - window.x, (blurred.rows - 1) / 2.0 - window.y);
+    ei.corner_radius = 0.5 * std::hypot(blurred.cols, blurred.rows);
+    ei.valid = overlap(window);
+    ei.fit = options.fit;
+    ei.kernel_options = options.kernel;
+    try {
+      result.effects = diagnoseEffects(ei, options.effects);
+      if (!result.effects.fits.empty()) {
+        result.base_fits = result.fits;
+        for (const auto& [name, fit] : result.effects.fits) result.fits[name] = fit;
+      }
+    } catch (const InvalidInput& e) {
+      result.warnings.push_back(std::string("effect diagnostics skipped: ") + e.what());
+    }
+    result.timings["effects"] = since(te);
+    report("effects", 1, result.effects.detected().empty() ? "none detected" : "detected");
+  }
 
   // Diagnostics on G.
   const cv::Mat sg = sharp_g(window), bg = blurred_g(window);

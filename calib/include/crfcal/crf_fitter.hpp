@@ -2,23 +2,27 @@
 // The dual-image CRF fitter (seed Sec. 4): given a sharp image I, a blurred image B and the kernel K, recover
 // the inverse response φ and the exposure ratio r of B = ψ(r · (φ(I) ⊗ K)) (Eq. 4).
 //
-// Two objectives:
+// Objectives:
 //  * seed_intensity — the seed's Eq. 22 as published: J(φ) = ‖W · (ψ(r · φ(I) ⊗ K) − B)‖², W = Γ where
-//    Γ > τ1 (Eq. 23, r = 1) or W = Imax − Imin where > τ2 (Eq. 24, r ≠ 1), GGCM φ (Eq. 19), r from Eq. 25.
-//  * corrected_irradiance (crfcal's default) — errors in variables. The residual is taken in the irradiance
-//    domain, r_p = φ(B_p) − r · Σ_v w_p(v) g(x_v), with g = R φ the noise-debiased level function
-//    (noise_debias.hpp) so that the mixture is an unbiased estimate of (φ(c) ⊗ K)(p) for the clean sharp
-//    image c, and its noise variance (estimated without bias from the squared kernel masses) is subtracted:
-//      J(φ) = Σ_p ω_p [ r_p² − r² Σ_v u_p(v) (g(x_v)² − (R φ²)(x_v)) ],   E[J] = Σ_p ω_p (noise-free residual)².
-//    ω_p = 1/φ'(B_p)² (iteratively reweighted) makes J the first-order intensity-domain energy of Eq. 21.
-//    Pixels are selected from B alone (B is the low-noise image: local range over the kernel support > 
-//    `edge_threshold`), so the selection does not correlate with the noise of I. Because J is a quadratic form
-//    in the values of φ on the level grid, J = φᵀ Q(r) φ with an L×L matrix Q accumulated once from the sparse
-//    level mixtures (level_mixture.hpp): an evaluation costs O(L²), independent of the image size.
-// Models: GGCM (Eq. 19, n = 4) and EMoR (first `emor_terms` PCA curves, linear: closed-form minimiser of the
-// quadratic form, then constrained refinement if not monotone). `model = automatic` picks the candidate with
-// the lower 2-fold cross-validated energy (pixels split in 16×16 tiles, checkerboard; fit on one half,
-// corrected energy on the other, summed both ways).
+//    Γ > τ1 (Eq. 23, r = 1) or W = Imax − Imin where > τ2 (Eq. 24, r ≠ 1), GGCM φ (Eq. 19), r from Eq. 25,
+//    Nelder–Mead. The mixtures φ(I) ⊗ K are sparse level mixtures (level_mixture.hpp), never convolutions.
+//  * moments (crfcal's default) — binned irradiance moments (an instrumental-variable / GMM estimator).
+//    The sharp image I is noisy, B is not (the long exposure). For every selected pixel p the irradiance
+//    residual e_p = r · Σ_v w_p(v) g(x_v) − φ(B_p), with g = R φ the noise-debiased level function
+//    (noise_debias.hpp: E[g(I) | clean c] = φ(c)), has zero mean given the clean scene, whatever the noise of I.
+//    Pixels are grouped by instruments computed from B alone (bins of B's level × the position of B_p inside
+//    B's local range), so that the group sums Σ_{p∈k} e_p are unbiased moments and the noise averages out
+//    *before* it is squared (the errors-in-variables bias of per-pixel least squares, Jensen's bias of φ(I),
+//    and the selection bias of thresholds computed on the noisy I are all avoided). With the sums
+//    H_k = Σ_{p∈k} w_p (kernel-mass histograms of I's levels, debiased as Rᵀ H_k) and N_k = Σ_{p∈k} δ_{B_p},
+//      J(φ, r) = Σ_k ω_k ((r Rᵀ H_k − N_k) · φ)²,  ω_k = 1 / (n_k · s_k²),
+//    with s_k the bin's per-pixel irradiance scale (φ'(B) times the intensity noise). An evaluation costs
+//    O(bins × levels) — independent of the image size.
+// Models: GGCM (Eq. 19, n = 4; Levenberg–Marquardt on (α, r) from several starts) and EMoR (first
+// `emor_terms` PCA curves; linear least squares in the coefficients, alternated with the closed-form r, then a
+// penalised refinement if not monotone). `model = automatic` picks the candidate with the lower 2-fold
+// cross-validated energy (pixels split in 16×16 tiles, checkerboard; fit on one half, energy on the other,
+// summed both ways).
 #include <functional>
 #include <string>
 #include <vector>
@@ -30,10 +34,10 @@
 namespace crfcal {
 
 enum class CrfModelChoice { ggcm, emor, automatic };
-enum class CrfObjective { seed_intensity, noise_aware_intensity, corrected_irradiance, instrumental };
-enum class CrfOptimizer { nelder_mead, lbfgs, bobyqa };
-// none: I used as is. debias: errors-in-variables level functions (σ of I estimated unless given).
-// denoise: an edge-preserving (bilateral) filter on I before building the mixtures, no debiasing.
+enum class CrfObjective { seed_intensity, moments };
+enum class CrfOptimizer { nelder_mead, levenberg_marquardt };
+// none: I used as is. debias: errors-in-variables level functions g = R φ (σ of I estimated unless given).
+// denoise: an edge-preserving (bilateral, range 2σ) filter on I before building the mixtures.
 enum class NoiseHandling { none, debias, denoise };
 
 const char* toString(CrfModelChoice value);
@@ -48,21 +52,30 @@ struct CrfFitOptions {
   double tau1 = 0.02;    // Eq. 23: W = Γ where Γ > τ1 (r = 1)
   double tau2 = 0.2;     // Eq. 24: W = Imax − Imin where > τ2 (r ≠ 1)
   double initial_ratio = 1.0;  // r from EXIF (footnote 4) or given
-  bool fit_ratio = true;       // update r between φ steps (Eq. 25)
-  CrfObjective objective = CrfObjective::noise_aware_intensity;
-  CrfOptimizer optimizer = CrfOptimizer::bobyqa;
-  int multi_starts = 4;        // GGCM starting points for lbfgs/bobyqa (EMoR projection + gammas)
-  NoiseHandling noise = NoiseHandling::debias;
+  bool fit_ratio = true;       // seed: Eq. 25 alternation; moments: r estimated jointly with φ
+  CrfObjective objective = CrfObjective::moments;
+  CrfOptimizer optimizer = CrfOptimizer::levenberg_marquardt;  // for GGCM; EMoR is linear
+  int multi_starts = 4;        // GGCM starts (EMoR projection + γ 2.2, 1.6, 3.0, 1.0)
+  NoiseHandling noise = NoiseHandling::none;  // debias helps only at σ² = 0.001 (measured); see the bench
   double noise_sigma = -1;     // std of I's noise, intensities in [0,1]; < 0: estimated (noise_estimation.hpp)
+  // Optional signal-dependent noise of I: σ as a function of the clean level v = 0..levels−1 (size = the level
+  // grid of the fit: 256 for 8-bit data, 1024 otherwise). Empty: homoscedastic `noise_sigma`. Used for the rows
+  // of the debias transition matrix (noise_debias.hpp) and for the moment weights. Wrong size → InvalidInput.
+  std::vector<double> noise_sigma_per_level;
+  // moments: continuously-updated GMM — every bin sum divided by its model standard deviation at the current φ
+  // (I's noise through the transition matrix + quantisation), so the squared noise adds a φ-independent constant;
+  // fitted from the least-squares solution; then GGCM vs EMoR by the lower CUE energy (equal parameter counts).
+  bool variance_correction = false;  // measured worse (docs/results-parts/synthetic.md); ablation only
   double debias_regularization = 1e-4;  // λ of the deconvolution (noise_debias.hpp)
-  double edge_threshold = 0.02;         // corrected_irradiance: local range of B over the support > this
+  double edge_threshold = 0.02;         // moments: local range of B over the kernel support > this
+  int level_bins = 64;                  // moments: bins of B's level
+  int position_bins = 2;                // moments: bins of the local min and of the local max of B over the support
   double saturation_high = 254.5 / 255.0;  // B or I at/above: saturated (dilated by the kernel's support)
   double saturation_low = 0.5 / 255.0;     // B or I at/below: censored black (dilated likewise)
-  int irls_rounds = 2;         // reweighting rounds of ω = 1/φ'(B)² (corrected_irradiance)
-  int ratio_rounds = 6;        // alternations φ-step / r-step (Eq. 25) at most
-  int max_evaluations = 1000;  // per optimiser run
+  int ratio_rounds = 6;        // seed: alternations φ-step / r-step (Eq. 25) at most
+  int max_evaluations = 1000;  // per Nelder–Mead run / LM iterations × 10
   int min_pixels = 200;        // fewer usable pixels: the pair has no edges → InvalidInput
-  int max_pixels = 8000;       // crfcal objectives: deterministic subsample above this (0: all)
+  int max_pixels = 0;          // deterministic subsample above this (0: all pixels)
   int threads = 0;             // 0: OpenCV's default
   std::function<void(double fraction, const std::string& stage)> progress;  // optional
 
@@ -77,7 +90,7 @@ struct CrfCandidate {
   std::vector<double> inverse_crf;  // 1024 samples
   double ratio = 1;
   double energy = 0;           // objective per unit weight on all used pixels
-  double criterion = 0;        // 2-fold cross-validated energy (lower is better); = energy for seed_intensity
+  double criterion = 0;        // 2-fold cross-validated energy (lower is better); = energy without CV
   bool valid = false;          // monotone, φ(0) = 0, φ(1) = 1
   int evaluations = 0;
 };
@@ -93,8 +106,8 @@ struct CrfPixelAccounting {
 };
 
 struct CrfFitTimings {
-  double prepare_s = 0;  // levels, noise estimate, masks
-  double mixture_s = 0;  // sparse level mixtures (+ quadratic forms)
+  double prepare_s = 0;  // levels, noise estimate, masks, debias operator
+  double mixture_s = 0;  // sparse level mixtures / moment sums
   double optimise_s = 0;
   double total_s = 0;
 };
@@ -105,18 +118,19 @@ struct CrfFitResult {
   double ratio = 1;                 // r (Eq. 4)
   double initial_ratio = 1;
   double energy = 0;                // final objective (per unit weight)
-  int iterations = 0;               // φ/r alternations (× reweighting rounds)
+  int iterations = 0;               // φ/r alternations or LM iterations
   int evaluations = 0;              // objective evaluations, all optimiser runs
   std::vector<CrfCandidate> candidates;
   std::string chosen;               // kind of the chosen candidate
   std::string choice_reason;
   CrfPixelAccounting pixels;
-  double noise_sigma = 0;           // σ of I used (estimated or given)
+  double noise_sigma = 0;           // σ of I used (estimated or given; mean over levels when per level)
   bool noise_sigma_estimated = false;
   int levels = 256;                 // level grid of the mixtures
+  int moment_bins = 0;              // non-empty instrument bins (moments)
   std::size_t mixture_nonzeros = 0;
-  CrfObjective objective = CrfObjective::noise_aware_intensity;
-  CrfOptimizer optimizer = CrfOptimizer::bobyqa;
+  CrfObjective objective = CrfObjective::moments;
+  CrfOptimizer optimizer = CrfOptimizer::levenberg_marquardt;
   CrfFitTimings timings;
 
   std::string summary() const;
@@ -124,7 +138,7 @@ struct CrfFitResult {
 
 // sharp/blurred: registered single-channel images (CV_8U, CV_16U or CV_64F/CV_32F in [0,1]); kernel: blur
 // kernel (normalised internally). Throws InvalidInput for a size mismatch, a pair without edges (too few usable
-// pixels) and a pair whose pixels are all saturated. The returned φ is always valid.
+// pixels: "no usable edges") and a pair whose pixels are all saturated. The returned φ is always valid.
 CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                            const CrfFitOptions& options = {});
 

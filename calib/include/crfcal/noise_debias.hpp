@@ -20,6 +20,8 @@ struct NoiseDebiasOptions {
   int levels = 256;              // L
   double sigma = 0;              // noise std of I, intensities in [0,1]; 0 → R = identity
   double regularization = 1e-4;  // λ relative to trace(TᵀT)/L
+  // Optional signal-dependent noise: σ of I at each clean level (size = levels); overrides `sigma` when set.
+  std::vector<double> sigma_per_level;
   void check() const;            // throws InvalidInput
 };
 
@@ -30,7 +32,7 @@ class NoiseDebias {
 
   bool identity() const { return identity_; }
   int levels() const { return levels_; }
-  double sigma() const { return sigma_; }
+  double sigma() const { return sigma_; }  // σ (mean over levels when per level)
   // g = R f.
   void apply(std::span<const double> f, std::span<double> g) const;
   std::vector<double> apply(std::span<const double> f) const;

@@ -14,6 +14,7 @@
 #include <opencv2/core.hpp>
 
 #include "crfcal/crf_fitter.hpp"
+#include "crfcal/effects.hpp"
 #include "crfcal/kernel_estimation.hpp"
 #include "crfcal/registration.hpp"
 #include "crfcal/tile_selection.hpp"
@@ -31,6 +32,7 @@ struct PairCalibrationOptions {
   int rounds = 2;                    // kernel ↔ φ rounds after the first fit (Sec. 4 iterates φ and r; we add K)
   double saturated_frame_limit = 0.6;  // more than this fraction of an image clipped: "saturated frame"
   int max_fit_side = 2048;           // the fit sees at most this window around the best tile (speed on 24 MP)
+  EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
   std::function<void(const std::string& stage, double fraction, const std::string& detail)> progress;
   void check() const;                // throws InvalidInput
 };
@@ -58,6 +60,8 @@ struct PairCalibrationResult {
   cv::Mat weights;                       // CV_8U, pixels used by the G fit inside fit_window
   std::map<std::string, double> timings; // seconds per stage
   std::vector<std::string> warnings;
+  EffectReport effects;                  // named effects tested on the residuals (effects.hpp)
+  std::map<std::string, CrfFitResult> base_fits;  // the fits before an effect's extended model replaced them
   std::string summary() const;
 };
 
