@@ -1,8 +1,11 @@
-// crfcal bench pairs: semi-real handheld pairs with known truth (real photo, measured curve, real kernel,
-// handheld misregistration, camera-like noise, JPEG, EXIF ratio) run through the whole calibrate pipeline.
+// crfcal bench pairs: semi-real handheld pairs with known truth (real photo, measured camera curve, real kernel,
+// handheld misregistration, camera-like noise, JPEG, EXIF ratio) run through the whole calibrate pipeline
+// (decode → registration → kernel → φ fit → kernel ↔ φ rounds → effects) with the kernel and the registration
+// unknown.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <sstream>
@@ -29,10 +32,11 @@ namespace fs = std::filesystem;
 
 struct PairsArgs {
   std::vector<std::string> images;
-  std::vector<std::string> crfs{"emor:0", "emor:1.0,0.3", "emor:-1.0,0.2"};
+  std::string data;  // ../shared/data (or CRFCAL_SHARED_DATA): default photos when no --image is given
+  std::vector<std::string> crfs;
   std::vector<std::string> kernels{"levin:1", "levin:3", "levin:8"};
+  std::vector<double> ratios{1.0};
   std::string output;
-  double ratio = 1.0;
   double exif_error = 0.04;  // EXIF ratio = truth × (1 + this): camera hardware imprecision (Sec. 4)
   double shift = 4.3;
   double rotation = 0.4;
@@ -43,108 +47,177 @@ struct PairsArgs {
   bool pairs_only = false;
 };
 
-double cornerError(const cv::Mat& H, const cv::Mat& truth, cv::Size size) {
+// Real photos of ../shared/data used when no --image is given (three cameras, indoor and night scenes).
+const char* kDefaultPhotos[] = {"brackets/nikon_e995_window/HDRI_Sample_Scene_Window_-_05.jpg",
+                                "brackets/canon5d2_frobisher/IMG_2601.jpg",
+                                "brackets/canon_s3is_stlouisarch/StLouisArchMultExpEV+1.51.jpeg"};
+// Measured green-channel curves bundled in samples/camera_curves (RAW-vs-JPEG fits of real cameras).
+const char* kDefaultCurves[] = {"NikonD70", "CanonPowerShotG9", "SonyDSLR-A100"};
+
+cv::Point2d centroid(const cv::Mat& K) {
+  cv::Point2d c;
+  const double total = cv::sum(K)[0];
+  for (int y = 0; y < K.rows; ++y)
+    for (int x = 0; x < K.cols; ++x) {
+      c.x += K.at<double>(y, x) * (x - K.cols / 2);
+      c.y += K.at<double>(y, x) * (y - K.rows / 2);
+    }
+  return c / std::max(total, 1e-300);
+}
+
+// Largest corner distance between the estimated and the true homography (sharp → blurred), after removing the
+// translation the kernel absorbed: with B(Hp) = (I ⊗ K_e)(p) and B(Ap) = (I ⊗ K)(p), H = A ∘ T(c_K − c_e).
+double cornerError(const cv::Mat& H, const cv::Mat& truth, cv::Size size, cv::Point2d absorbed) {
   std::vector<cv::Point2d> corners{{0, 0}, {size.width - 1.0, 0}, {0, size.height - 1.0}, {size.width - 1.0, size.height - 1.0}};
-  std::vector<cv::Point2d> a, b;
-  cv::perspectiveTransform(corners, a, H);
+  std::vector<cv::Point2d> moved, a, b;
+  for (const auto& c : corners) moved.push_back(c - absorbed);
+  cv::perspectiveTransform(moved, a, H);
   cv::perspectiveTransform(corners, b, truth);
   double worst = 0;
   for (size_t i = 0; i < a.size(); ++i) worst = std::max(worst, cv::norm(a[i] - b[i]));
   return worst;
 }
 
+std::string shortName(const std::string& spec) {
+  if (spec.rfind("table:", 0) == 0) return fs::path(spec.substr(6)).stem().string();
+  return spec;
+}
+
 int runPairs(const PairsArgs& args) {
-  if (args.images.empty()) throw InvalidInput("bench pairs: give at least one --image");
+  std::vector<std::string> images = args.images;
+  if (images.empty()) {
+    std::string data = args.data;
+    if (data.empty()) {
+      const char* env = std::getenv("CRFCAL_SHARED_DATA");
+      data = env ? env : "../shared/data";
+    }
+    for (const char* p : kDefaultPhotos) {
+      const fs::path path = fs::path(data) / p;
+      if (!fs::exists(path))
+        throw Error("default photo not found (give --image or --data / CRFCAL_SHARED_DATA)", path.string());
+      images.push_back(path.string());
+    }
+  }
+  std::vector<std::string> crfs = args.crfs;
+  if (crfs.empty())
+    for (const char* c : kDefaultCurves)
+      crfs.push_back("table:" + (io::samplesDirectory() / "camera_curves" / (std::string(c) + ".csv")).string());
+
   Progress progress;
   io::OutputDirectory out(args.output);
   nlohmann::json results = nlohmann::json::array();
   std::ostringstream table;
-  table << "| case | image | crf | kernel | phi_G RMSE | r fitted/true | kernel shape err | reg. corner err px | time s |\n"
-        << "|---|---|---|---|---|---|---|---|---|\n";
+  table << "| case | image | curve | kernel | r | phi_G RMSE | (base fit) | r fitted/true | kernel shape err | "
+           "reg. corner err px | time s |\n"
+        << "|---|---|---|---|---|---|---|---|---|---|---|\n";
   int index = 0;
-  double sum_rmse = 0, sum_r = 0;
+  double sum_rmse = 0, sum_base = 0, sum_r = 0, sum_k = 0, worst_r = 0, worst_rmse = 0;
   int done = 0;
-  for (const auto& image_path : args.images) {
+  for (const auto& image_path : images) {
     cv::Mat photo = io::readImage(image_path);
     if (photo.depth() != CV_8U) photo.convertTo(photo, CV_8U, 255.0 / 65535.0);
     const double s = std::min(1.0, static_cast<double>(args.max_side) / std::max(photo.cols, photo.rows));
     if (s < 1) cv::resize(photo, photo, cv::Size(), s, s, cv::INTER_AREA);
-    for (const auto& crf : args.crfs) {
+    for (const auto& crf : crfs) {
       for (const auto& kernel_spec : args.kernels) {
-        ++index;
-        const std::string name = "case" + std::to_string(index);
-        progress.stage(name);
-        const ResponseModel truth = io::parseResponseSpec(crf);
-        const cv::Mat kernel = io::kernelFromSpec(kernel_spec);
-        HandheldPairOptions ho;
-        ho.ratio = args.ratio;
-        ho.shift_x = args.shift;
-        ho.shift_y = -0.6 * args.shift;
-        ho.rotation_deg = args.rotation;
-        ho.seed = static_cast<std::uint64_t>(index);
-        const HandheldPair pair = makeHandheldPair(photo, truth, kernel, ho);
-        const fs::path dir = out.file(name);
-        fs::create_directories(dir);
-        const std::vector<int> jpeg{cv::IMWRITE_JPEG_QUALITY, args.quality};
-        cv::imwrite((dir / "sharp.jpg").string(), pair.sharp, jpeg);
-        cv::imwrite((dir / "blurred.jpg").string(), pair.blurred, jpeg);
-        ExifExposure es, eb;
-        es.make = eb.make = "crfcal";
-        es.model = eb.model = "semi-real handheld";
-        es.iso = 800;
-        es.exposure_time = 0.01;
-        es.f_number = eb.f_number = 4.0;
-        eb.iso = 100;
-        eb.exposure_time = args.ratio * (1 + args.exif_error) * 800 * 0.01 / 100;
-        io::writeExif(dir / "sharp.jpg", es);
-        io::writeExif(dir / "blurred.jpg", eb);
-        nlohmann::json truth_json = {{"inverse_crf", sampleInverse(truth)}, {"crf_spec", crf}, {"kernel_spec", kernel_spec},
-                                     {"exposure_ratio", args.ratio}, {"exif_ratio", *eb.exposure_time * 100 / 8.0},
-                                     {"homography", std::vector<double>(pair.homography.begin<double>(), pair.homography.end<double>())},
-                                     {"image", image_path}};
-        io::writeTextFile(dir / "truth.json", truth_json.dump(1) + "\n");
-        if (args.pairs_only) {
-          progress.done();
-          continue;
+        for (const double ratio : args.ratios) {
+          ++index;
+          const std::string name = "case" + std::to_string(index);
+          progress.stage(name);
+          const ResponseModel truth = io::parseResponseSpec(crf);
+          const cv::Mat kernel = io::kernelFromSpec(kernel_spec);
+          // A different handheld motion per case: the shift turns by 137.5° (golden angle) from case to case,
+          // the rotation alternates in sign.
+          const double angle = index * 2.399963;
+          HandheldPairOptions ho;
+          ho.ratio = ratio;
+          ho.shift_x = args.shift * std::cos(angle);
+          ho.shift_y = args.shift * std::sin(angle);
+          ho.rotation_deg = index % 2 ? args.rotation : -args.rotation;
+          ho.seed = static_cast<std::uint64_t>(index);
+          const HandheldPair pair = makeHandheldPair(photo, truth, kernel, ho);
+          const fs::path dir = out.file(name);
+          fs::create_directories(dir);
+          const std::vector<int> jpeg{cv::IMWRITE_JPEG_QUALITY, args.quality};
+          cv::imwrite((dir / "sharp.jpg").string(), pair.sharp, jpeg);
+          cv::imwrite((dir / "blurred.jpg").string(), pair.blurred, jpeg);
+          ExifExposure es, eb;
+          es.make = eb.make = "crfcal";
+          es.model = eb.model = "semi-real handheld";
+          es.iso = 800;
+          es.exposure_time = 0.01;
+          es.f_number = eb.f_number = 4.0;
+          eb.iso = 100;
+          eb.exposure_time = ratio * (1 + args.exif_error) * 800 * 0.01 / 100;
+          io::writeExif(dir / "sharp.jpg", es);
+          io::writeExif(dir / "blurred.jpg", eb);
+          nlohmann::json truth_json = {{"inverse_crf", sampleInverse(truth)}, {"crf_spec", crf}, {"kernel_spec", kernel_spec},
+                                       {"exposure_ratio", ratio}, {"exif_ratio", *eb.exposure_time * 100 / 8.0},
+                                       {"homography", std::vector<double>(pair.homography.begin<double>(), pair.homography.end<double>())},
+                                       {"image", image_path}};
+          io::writeTextFile(dir / "truth.json", truth_json.dump(1) + "\n");
+          if (args.pairs_only) {
+            progress.done();
+            continue;
+          }
+          const auto t0 = std::chrono::steady_clock::now();
+          nlohmann::json row = {{"case", name}, {"image", fs::path(image_path).filename().string()}, {"crf", crf},
+                                {"kernel", kernel_spec}, {"ratio", ratio}};
+          try {
+            const io::LoadedPair loaded = io::loadPair(dir / "sharp.jpg", dir / "blurred.jpg");
+            PairCalibrationOptions options;
+            options.kernel.kernel_size = args.kernel_size;
+            options.rgb = args.channels == "rgb";
+            options.fit.initial_ratio = loaded.exif_ratio->ratio();
+            const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
+            const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+            const double rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(truth));
+            const double rr = r.fits.at("G").ratio / ratio;
+            // φ before a detected effect's extended model replaced it (effects.hpp), for comparison.
+            const double base = r.base_fits.count("G") ? curveRmse(r.base_fits.at("G").inverse_crf, sampleInverse(truth)) : rmse;
+            const double kerr = kernelShapeError(r.kernel.kernel, kernel);
+            const double cerr = cornerError(r.registration.homography, pair.homography, photo.size(),
+                                            centroid(kernel) - r.kernel.centroid);
+            // Both kernels on the same canvas and scale (the estimate's window), for a side-by-side look.
+            const int side = std::max({r.kernel.kernel.rows, kernel.rows, kernel.cols}) | 1;
+            cv::Mat true_padded = cv::Mat::zeros(side, side, CV_64F);
+            kernel.copyTo(true_padded(cv::Rect((side - kernel.cols) / 2, (side - kernel.rows) / 2, kernel.cols, kernel.rows)));
+            io::writeKernelPng(dir / "kernel_estimated.png", r.kernel.kernel);
+            io::writeKernelText(dir / "kernel_estimated.txt", r.kernel.kernel);
+            io::writeKernelPng(dir / "kernel_true.png", true_padded);
+            row.update({{"phi_rmse_G", rmse}, {"phi_rmse_G_base_fit", base}, {"ratio_fitted_over_true", rr},
+                        {"effects_detected", r.effects.detected()}, {"kernel_shape_error", kerr},
+                        {"registration_corner_error_px", cerr}, {"seconds", seconds}, {"swapped", loaded.swapped},
+                        {"inverse_crf_G", r.fits.at("G").inverse_crf}, {"warnings", r.warnings}});
+            char line[400];
+            std::snprintf(line, sizeof line, "| %s | %s | %s | %s | %.2f | %.4f | %.4f | %.4f | %.3f | %.2f | %.1f |\n",
+                          name.c_str(), fs::path(image_path).filename().string().c_str(), shortName(crf).c_str(),
+                          kernel_spec.c_str(), ratio, rmse, base, rr, kerr, cerr, seconds);
+            table << line;
+            sum_rmse += rmse;
+            sum_base += base;
+            sum_r += std::abs(rr - 1);
+            sum_k += kerr;
+            worst_r = std::max(worst_r, std::abs(rr - 1));
+            worst_rmse = std::max(worst_rmse, rmse);
+            ++done;
+            progress.done(line);
+          } catch (const Error& e) {
+            row["error"] = e.what();
+            table << "| " << name << " | failed: " << e.what() << " ||||||||||\n";
+            progress.done(std::string("FAILED: ") + e.what());
+          }
+          results.push_back(row);
         }
-        const auto t0 = std::chrono::steady_clock::now();
-        nlohmann::json row = {{"case", name}, {"image", fs::path(image_path).filename().string()}, {"crf", crf}, {"kernel", kernel_spec}};
-        try {
-          const io::LoadedPair loaded = io::loadPair(dir / "sharp.jpg", dir / "blurred.jpg");
-          PairCalibrationOptions options;
-          options.kernel.kernel_size = args.kernel_size;
-          options.rgb = args.channels == "rgb";
-          options.fit.initial_ratio = loaded.exif_ratio->ratio();
-          const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
-          const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-          const double rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(truth));
-          const double rr = r.fits.at("G").ratio / args.ratio;
-          const double kerr = kernelShapeError(r.kernel.kernel, kernel);
-          const double cerr = cornerError(r.registration.homography, pair.homography, photo.size());
-          row.update({{"phi_rmse_G", rmse}, {"ratio_fitted_over_true", rr}, {"kernel_shape_error", kerr},
-                      {"registration_corner_error_px", cerr}, {"seconds", seconds}, {"swapped", loaded.swapped}});
-          char line[300];
-          std::snprintf(line, sizeof line, "| %s | %s | %s | %s | %.4f | %.4f | %.3f | %.2f | %.1f |\n", name.c_str(),
-                        fs::path(image_path).filename().string().c_str(), crf.c_str(), kernel_spec.c_str(), rmse, rr,
-                        kerr, cerr, seconds);
-          table << line;
-          sum_rmse += rmse;
-          sum_r += std::abs(rr - 1);
-          ++done;
-          progress.done(line);
-        } catch (const Error& e) {
-          row["error"] = e.what();
-          table << "| " << name << " | failed: " << e.what() << " |||||||\n";
-          progress.done(std::string("FAILED: ") + e.what());
-        }
-        results.push_back(row);
       }
     }
   }
   if (done > 0) {
-    char line[200];
-    std::snprintf(line, sizeof line, "\nmean phi_G RMSE %.4f, mean |r_fitted/r_true - 1| %.4f over %d cases\n",
-                  sum_rmse / done, sum_r / done, done);
+    char line[400];
+    std::snprintf(line, sizeof line,
+                  "\nmean phi_G RMSE %.4f (worst %.4f; base fits before effect refits %.4f), mean |r_fitted/r_true - 1| "
+                  "%.4f (worst %.4f), mean kernel shape error %.3f over %d of %d cases\n",
+                  sum_rmse / done, worst_rmse, sum_base / done, sum_r / done, worst_r, sum_k / done, done, index);
     table << line;
   }
   io::writeTextFile(out.file("results.json"), results.dump(1) + "\n");
@@ -161,13 +234,17 @@ const BenchRegistration registration(
     "through the calibrate pipeline: phi RMSE, ratio, kernel and registration errors",
     [](CLI::App& command) {
       auto args = std::make_shared<PairsArgs>();
-      command.add_option("--image", args->images, "Real photo(s) to make pairs from")->required()->check(CLI::ExistingFile);
-      command.add_option("--crf", args->crfs, "True inverse response(s) phi (spec)");
+      command.add_option("--image", args->images, "Real photo(s) to make pairs from (default: three photos of --data)")
+          ->check(CLI::ExistingFile);
+      command.add_option("--data", args->data, "The shared data directory (default: $CRFCAL_SHARED_DATA or ../shared/data)");
+      command.add_option("--crf", args->crfs,
+                         "True inverse response(s) phi (spec; default: measured curves of three cameras in "
+                         "samples/camera_curves)");
       command.add_option("--kernel", args->kernels, "True kernel(s): levin:N | box:L | FILE");
-      command.add_option("--ratio", args->ratio, "True exposure ratio r")->check(CLI::PositiveNumber);
+      command.add_option("--ratio", args->ratios, "True exposure ratio(s) r")->check(CLI::PositiveNumber);
       command.add_option("--exif-error", args->exif_error, "Relative error of the EXIF ratio against the truth");
-      command.add_option("--shift", args->shift, "Handheld shift (x; y = -0.6 x), pixels");
-      command.add_option("--rotation", args->rotation, "Handheld rotation, degrees");
+      command.add_option("--shift", args->shift, "Handheld shift magnitude, pixels (direction varies per case)");
+      command.add_option("--rotation", args->rotation, "Handheld rotation, degrees (sign alternates per case)");
       command.add_option("--quality", args->quality, "JPEG quality")->check(CLI::Range(50, 100));
       command.add_option("--max-side", args->max_side, "Downscale the photo to this longest side");
       command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)");

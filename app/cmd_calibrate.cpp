@@ -1,7 +1,9 @@
 // crfcal calibrate SHARP BLURRED -o DIR: a real handheld JPEG or RAW pair in, the camera's response out (Sec. 4).
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include <opencv2/core.hpp>
@@ -16,7 +18,9 @@
 #include "crfcal/io/plot.hpp"
 #include "crfcal/io/report.hpp"
 #include "crfcal/io/response_io.hpp"
+#include "crfcal/curve_comparison.hpp"
 #include "crfcal/pair_calibration.hpp"
+#include "crfcal/raw_truth.hpp"
 #include "progress.hpp"
 
 namespace crfcal::app {
@@ -34,8 +38,140 @@ struct CalibrateArgs {
   std::string blurred = "auto";
   bool no_white_balance = false;
   bool no_register = false;
+  bool fix_ratio = false;
   bool quiet = false;
+  std::string raw_truth;            // RAW (or linear image) of one of the two shots
+  std::string raw_truth_of = "auto";  // which shot it is: auto (EXIF), sharp, blurred
 };
+
+// Which shot of the pair the --raw-truth file belongs to: given, else the one with the same exposure time (and ISO,
+// when both say) in EXIF, else the sharp one.
+struct TruthShot {
+  bool blurred = false;
+  std::string reason;
+};
+
+TruthShot chooseTruthShot(const std::string& given, const io::LoadedImage& truth, const io::LoadedPair& pair) {
+  if (given == "sharp") return {false, "given on the command line"};
+  if (given == "blurred") return {true, "given on the command line"};
+  auto same = [](const std::optional<double>& a, const std::optional<double>& b) {
+    return a && b && *a > 0 && *b > 0 && std::abs(std::log(*a / *b)) < std::log(1.05);
+  };
+  auto unknownOrSame = [&](const std::optional<double>& a, const std::optional<double>& b) {
+    return !a || !b || same(a, b);
+  };
+  const ExifExposure& t = truth.exposure;
+  const ExifExposure &s = pair.sharp.exposure, &b = pair.blurred.exposure;
+  if (!t.exposure_time || !s.exposure_time || !b.exposure_time)
+    return {false, "the sharp shot (default: no EXIF exposure times to decide)"};
+  const bool is_sharp = same(t.exposure_time, s.exposure_time) && unknownOrSame(t.iso, s.iso);
+  const bool is_blurred = same(t.exposure_time, b.exposure_time) && unknownOrSame(t.iso, b.iso);
+  if (is_sharp && !is_blurred) return {false, "EXIF: same exposure as the sharp shot (" + t.summary() + ")"};
+  if (is_blurred && !is_sharp) return {true, "EXIF: same exposure as the blurred shot (" + t.summary() + ")"};
+  if (is_sharp && is_blurred)
+    return {false, "EXIF: both shots have its exposure; the sharp one assumed (--raw-truth-of decides)"};
+  throw InvalidInput("its exposure (" + t.summary() + ") matches neither shot (sharp: " + s.summary() + "; blurred: " +
+                         b.summary() + "): not a RAW of this pair? (--raw-truth-of sharp|blurred overrides)",
+                     truth.path.string());
+}
+
+struct RawTruthRun {
+  io::LoadedImage file;
+  TruthShot shot;
+  std::string shot_file;
+  RawTruthResult result;
+};
+
+// Loads the --raw-truth file and measures the camera's response from it and the JPEG of its shot (calib/raw_truth).
+RawTruthRun computeTruth(const CalibrateArgs& args, const io::LoadedPair& pair, const io::RawDecodeOptions& raw) {
+  if (pair.sharp.linear)
+    throw InvalidInput("--raw-truth needs a rendered (JPEG, PNG, TIFF) pair: this pair is already linear camera RAW",
+                       pair.sharp.path.string() + ", " + pair.blurred.path.string());
+  RawTruthRun run;
+  // A 2x2-binned decode (LibRaw half_size): no demosaicing artefacts, and the truth works on ≤ 1024 px copies anyway.
+  io::RawDecodeOptions truth_raw = raw;
+  truth_raw.half_size = true;
+  run.file = io::loadImage(args.raw_truth, truth_raw);
+  if (run.file.format == "jpeg")
+    throw InvalidInput("is a JPEG, not linear data: give the camera RAW or a linear (PNG/TIFF) rendering of it",
+                       args.raw_truth);
+  run.shot = chooseTruthShot(args.raw_truth_of, run.file, pair);
+  const io::LoadedImage& shot = run.shot.blurred ? pair.blurred : pair.sharp;
+  run.shot_file = shot.path.string();
+  RawTruthOptions options;
+  options.channels = args.channels == "rgb" && shot.image.channels() >= 3 ? std::vector<std::string>{"R", "G", "B"}
+                                                                           : std::vector<std::string>{"G"};
+  try {
+    run.result = computeRawTruth(shot.image, run.file.image, options);
+  } catch (const InvalidInput& e) {
+    throw InvalidInput(e.reason(), args.raw_truth);
+  }
+  if (!run.file.linear)
+    run.result.warnings.push_back("not a camera RAW: taken as linear data as given (the response's exponent "
+                                  "checks it)");
+  return run;
+}
+
+nlohmann::json comparisonJson(const CurveComparison& comparison) {
+  nlohmann::json out = nlohmann::json::object();
+  for (const auto& c : comparison.channels)
+    out[c.channel] = {{"rmse", c.rmse},
+                      {"max_error", c.max_error},
+                      {"covered", {c.covered.first, c.covered.second}},
+                      {"covered_source", c.covered_source},
+                      {"rmse_covered", c.rmse_covered},
+                      {"max_error_covered", c.max_error_covered},
+                      {"scale_covered", c.scale_covered},
+                      {"rmse_covered_aligned", c.rmse_covered_aligned}};
+  out["worst_rmse"] = comparison.worst_rmse;
+  out["worst_rmse_covered"] = comparison.worst_rmse_covered;
+  out["worst_rmse_covered_aligned"] = comparison.worst_rmse_covered_aligned;
+  return out;
+}
+
+nlohmann::json truthJson(const RawTruthRun& run, const std::optional<CurveComparison>& comparison) {
+  const RawTruthResult& r = run.result;
+  nlohmann::json out = {{"file", run.file.path.string()},
+                        {"format", run.file.format},
+                        {"camera_raw", run.file.linear},
+                        {"shot", run.shot.blurred ? "blurred" : "sharp"},
+                        {"shot_file", run.shot_file},
+                        {"shot_reason", run.shot.reason},
+                        {"inverse_crf", r.inverse()},
+                        {"covered_range", nlohmann::json::object()},
+                        {"channels", nlohmann::json::object()},
+                        {"overlap_pixels", r.overlap_pixels},
+                        {"flat_pixels", r.flat_pixels},
+                        {"warnings", r.warnings}};
+  if (run.file.linear) out["raw_levels"] = {{"black", run.file.black_level}, {"white", run.file.white_level}};
+  for (const auto& [name, range] : r.covered()) out["covered_range"][name] = {range.first, range.second};
+  for (const auto& c : r.channels) {
+    nlohmann::json cv = nlohmann::json::array();
+    for (const auto& [k, e] : c.fit.cv_rmse) cv.push_back({k, e});
+    out["channels"][c.channel] = {{"model", describe(c.fit.model)},
+                                  {"terms", c.fit.terms},
+                                  {"cv_rmse", cv},
+                                  {"colour_mix", c.mix},
+                                  {"bin_rmse", c.fit.rmse},
+                                  {"pixel_rmse", c.pixel_rmse},
+                                  {"explained_variance", c.explained},
+                                  {"effective_exponent", std::isfinite(c.effective_gamma)
+                                                             ? nlohmann::json(c.effective_gamma)
+                                                             : nlohmann::json(nullptr)},
+                                  {"pixels", c.pixels},
+                                  {"censored_pixels", c.censored_pixels},
+                                  {"bins", c.bins}};
+  }
+  const cv::Mat& H = r.registration.homography;
+  out["registration"] = {{"method", r.registration.method},
+                         {"rotation_deg", r.rotation_degrees},
+                         {"linear_scale", r.linear_scale},
+                         {"ecc_correlation", r.registration.ecc_correlation},
+                         {"working_size", {r.working_size.width, r.working_size.height}},
+                         {"matrix", std::vector<double>(H.begin<double>(), H.end<double>())}};
+  if (comparison) out["comparison"] = comparisonJson(*comparison);
+  return out;
+}
 
 int runCalibrate(const CalibrateArgs& args) {
   using Clock = std::chrono::steady_clock;
@@ -73,12 +209,25 @@ int runCalibrate(const CalibrateArgs& args) {
     ratio = pair.exif_ratio->ratio();
   }
 
+  // The RAW of one shot: the camera's real response, measured before the (longer) pair calibration so that a bad
+  // file fails fast.
+  std::optional<RawTruthRun> truth;
+  if (!args.raw_truth.empty()) {
+    progress.stage("raw truth");
+    t = Clock::now();
+    truth = computeTruth(args, pair, raw);
+    report.timings["raw_truth"] = std::chrono::duration<double>(Clock::now() - t).count();
+    progress.done(truth->file.format + " " + truth->file.path.filename().string() + " = the " +
+                  (truth->shot.blurred ? "blurred" : "sharp") + " shot (" + truth->shot.reason + ")");
+  }
+
   PairCalibrationOptions options;
   options.kernel.kernel_size = args.kernel_size;
   options.rgb = args.channels == "rgb";
   options.rounds = args.rounds;
   options.register_pair = !args.no_register;
   options.fit.initial_ratio = ratio;
+  options.fit.fit_ratio = !args.fix_ratio;
   options.fit.model = args.model == "ggcm" ? CrfModelChoice::ggcm
                       : args.model == "emor" ? CrfModelChoice::emor
                                              : CrfModelChoice::automatic;
@@ -94,7 +243,20 @@ int runCalibrate(const CalibrateArgs& args) {
     }
     progress.update(fraction, detail);
   };
-  const PairCalibrationResult result = calibratePair(pair.sharp.image, pair.blurred.image, options);
+  // Problems found by the computation name the pair's file(s), like the decoding errors do.
+  const PairCalibrationResult result = [&] {
+    try {
+      return calibratePair(pair.sharp.image, pair.blurred.image, options);
+    } catch (const InvalidInput& e) {
+      if (!e.file().empty()) throw;
+      const std::string& reason = e.reason();
+      const std::string file = reason.find("blurred image") != std::string::npos ? pair.blurred.path.string()
+                               : reason.find("sharp image") != std::string::npos
+                                   ? pair.sharp.path.string()
+                                   : pair.sharp.path.string() + ", " + pair.blurred.path.string();
+      throw InvalidInput(reason, file);
+    }
+  }();
   if (!current.empty()) progress.done();
 
   progress.stage("write");
@@ -106,6 +268,7 @@ int runCalibrate(const CalibrateArgs& args) {
     report.pixels_used[name] = fit.pixels.used;
   }
   report.ratio_fitted = result.fits.at("G").ratio;
+  report.covered_range = result.covered_range;
   report.warnings = result.warnings;
   report.effects = nlohmann::json::array();
   for (const auto& e : result.effects.entries)
@@ -147,6 +310,8 @@ int runCalibrate(const CalibrateArgs& args) {
                      {"estimated", result.kernel_estimated}};
   if (result.kernel_estimated) {
     extra["kernel"]["centroid"] = {result.kernel.centroid.x, result.kernel.centroid.y};
+    extra["kernel"]["blur_rms_radius_px"] = result.blur_radius;
+    extra["kernel"]["equations"] = result.kernel.equations;
     extra["kernel"]["border_mass"] = result.kernel.border_mass;
     extra["kernel"]["relative_residual"] = result.kernel.relative_residual;
     extra["kernel"]["tiles"] = result.tiles.size();
@@ -175,6 +340,21 @@ int runCalibrate(const CalibrateArgs& args) {
   for (const auto& [name, fit] : result.fits)
     extra["fit"][name] = {{"model", describe(fit.model)}, {"chosen", fit.chosen}, {"reason", fit.choice_reason},
                           {"energy", fit.energy}, {"iterations", fit.iterations}, {"noise_sigma", fit.noise_sigma}};
+  std::optional<CurveComparison> truth_comparison;
+  if (truth) {
+    // The pair's φ against the RAW truth, per channel, over [0,1] and over the range both are supported by data.
+    try {
+      truth_comparison = compareChannels(report.inverse_crf, truth->result.inverse(), report.covered_range,
+                                         truth->result.covered());
+    } catch (const InvalidInput&) {
+      // The two are supported by data on disjoint intensity ranges: only the [0,1] comparison is meaningful.
+      truth_comparison = compareChannels(report.inverse_crf, truth->result.inverse());
+      report.warnings.push_back("raw truth: the pair and the RAW truth cover disjoint intensity ranges; compared over "
+                                "[0,1] only");
+    }
+    extra["raw_truth"] = truthJson(*truth, truth_comparison);
+    for (const auto& w : truth->result.warnings) report.warnings.push_back("raw truth: " + w);
+  }
 
   io::OutputDirectory out(args.output);
   // inverse_crf.csv
@@ -202,6 +382,8 @@ int runCalibrate(const CalibrateArgs& args) {
     for (const auto& c : report.channels()) {
       const cv::Scalar colour = c == "R" ? cv::Scalar(40, 40, 220) : c == "G" ? cv::Scalar(40, 160, 40) : cv::Scalar(220, 80, 40);
       series.push_back({x, report.inverse_crf.at(c), colour, "phi " + c});
+      if (truth && truth->result.inverse().count(c))
+        series.push_back({x, truth->result.inverse().at(c), colour, "RAW truth " + c, 1, false, true});
     }
     io::PlotOptions plot;
     plot.title = "inverse response phi (" + pair.sharp.exposure.camera() + ")";
@@ -222,6 +404,11 @@ int runCalibrate(const CalibrateArgs& args) {
   std::printf("%s\n", result.summary().c_str());
   if (report.ratio_exif) std::printf("exposure ratio: EXIF %.4g, fitted %.4g\n", *report.ratio_exif, *report.ratio_fitted);
   else std::printf("exposure ratio: given %.4g, fitted %.4g\n", ratio, *report.ratio_fitted);
+  if (truth) {
+    std::printf("RAW truth (%s, the %s shot):\n%s", truth->file.path.string().c_str(),
+                truth->shot.blurred ? "blurred" : "sharp", truth->result.summary().c_str());
+    std::printf("pair phi vs RAW truth:\n%s", truth_comparison->summary().c_str());
+  }
   for (const auto& w : report.warnings) std::printf("warning: %s\n", w.c_str());
   std::printf("wrote %s/{report.json, inverse_crf.csv, kernel.png, kernel.txt, curve.png, gamma_map.png, weights.png}\n",
               args.output.c_str());
@@ -251,6 +438,16 @@ const CommandRegistration registration(
       command.add_option("--threads", args->threads, "Worker threads (0: all cores)")->check(CLI::NonNegativeNumber);
       command.add_flag("--no-white-balance", args->no_white_balance, "RAW: no white balance (sensor RGB)");
       command.add_flag("--no-register", args->no_register, "The pair is already aligned (skip registration)");
+      command.add_flag("--fix-ratio", args->fix_ratio,
+                       "Keep r at the EXIF/--ratio value instead of fitting it (weak blur leaves r and the curve's "
+                       "exponent ambiguous: phi^g, r^g fit equally)");
+      auto* raw_truth = command.add_option("--raw-truth", args->raw_truth,
+                         "Camera RAW (or a linear PNG/TIFF) of one of the two shots: its RAW->JPEG relation, the "
+                         "camera's real response, is written to report.json (raw_truth) and compared with the result");
+      command.add_option("--raw-truth-of", args->raw_truth_of,
+                         "Which shot the --raw-truth file is: auto (same exposure in EXIF, else sharp), sharp, blurred")
+          ->check(CLI::IsMember({"auto", "sharp", "blurred"}))
+          ->needs(raw_truth);
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] {
         if (args->kernel_size % 2 == 0) throw InvalidInput("--kernel-size must be odd");

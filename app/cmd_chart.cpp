@@ -1,12 +1,15 @@
 // crfcal chart: ColorChecker calibration of the inverse response (EMoR/PCA fit, converted to GGCM).
+#include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
 
 #include "command.hpp"
 #include "crfcal/chart_calibration.hpp"
+#include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/chart_io.hpp"
@@ -50,42 +53,6 @@ std::vector<double> parseList(const std::string& text, const std::string& what) 
   return values;
 }
 
-// RMSE over [lo, hi] after the best common factor a·φ (the normalisation φ(1) = 1 depends on the extrapolation
-// above the data; this isolates the shape error).
-double scaledRmseOver(const std::vector<double>& truth, const std::vector<double>& fit, double lo, double hi) {
-  double num = 0, den = 0;
-  for (size_t i = 0; i < truth.size() && i < fit.size(); ++i) {
-    const double x = double(i) / double(truth.size() - 1);
-    if (x < lo || x > hi) continue;
-    num += truth[i] * fit[i];
-    den += fit[i] * fit[i];
-  }
-  const double a = den > 0 ? num / den : 1.0;
-  std::vector<double> scaled(fit);
-  for (double& v : scaled) v *= a;
-  double sum = 0;
-  int n = 0;
-  for (size_t i = 0; i < truth.size() && i < fit.size(); ++i) {
-    const double x = double(i) / double(truth.size() - 1);
-    if (x < lo || x > hi) continue;
-    sum += (truth[i] - scaled[i]) * (truth[i] - scaled[i]);
-    ++n;
-  }
-  return n > 0 ? std::sqrt(sum / n) : 0.0;
-}
-
-double rmseOver(const std::vector<double>& a, const std::vector<double>& b, double lo, double hi) {
-  double sum = 0;
-  int n = 0;
-  for (size_t i = 0; i < a.size() && i < b.size(); ++i) {
-    const double x = double(i) / double(a.size() - 1);
-    if (x < lo || x > hi) continue;
-    sum += (a[i] - b[i]) * (a[i] - b[i]);
-    ++n;
-  }
-  return n > 0 ? std::sqrt(sum / n) : 0.0;
-}
-
 int runChart(ChartArgs args) {
   Progress progress(args.quiet);
   if (!args.raws.empty() && args.raws.size() != args.images.size())
@@ -110,10 +77,15 @@ int runChart(ChartArgs args) {
     if (exposures.size() != args.images.size()) throw InvalidInput("--exposures needs one value per IMAGE");
   }
 
+  const auto start = std::chrono::steady_clock::now();
+  auto seconds = [](std::chrono::steady_clock::time_point from) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - from).count();
+  };
   progress.stage("sample patches");
   std::vector<ChartShot> shots;
   std::vector<cv::Mat> rectified;  // written as chart_<i>.png to check the detection
   nlohmann::json inputs = nlohmann::json::array();
+  std::vector<std::string> input_warnings;
   for (size_t i = 0; i < args.images.size(); ++i) {
     std::optional<chart::ChartCorners> corners;
     if (!args.corners.empty()) corners = io::parseCorners(args.corners.size() == 1 ? args.corners[0] : args.corners[i]);
@@ -148,20 +120,53 @@ int runChart(ChartArgs args) {
         rejections[std::string(chart::reference()[static_cast<size_t>(p.patch)].name)] = p.rejection();
       }
     entry["rejected_patches"] = rejections;
+    // A shot without a single usable patch contributes nothing: say so rather than fit silently without it.
+    for (const auto* side : {&shot.measured, &shot.raw}) {
+      if (side->empty()) continue;
+      int usable = 0;
+      for (const auto& p : *side) usable += p.usable();
+      if (usable == 0)
+        input_warnings.push_back((side == &shot.raw ? args.raws[i] : args.images[i]) +
+                                 ": no usable patch (all clipped or non-uniform); the shot adds no data");
+    }
     inputs.push_back(entry);
     shots.push_back(std::move(shot));
     progress.update(double(i + 1) / double(args.images.size()), loaded.how);
   }
   progress.done();
+  const double sample_seconds = seconds(start);
 
+  const auto fit_start = std::chrono::steady_clock::now();
   progress.stage("fit");
-  const ChartCalibrationResult result =
-      calibrateChart(shots, options, [&](double f, const std::string& d) { progress.update(f, d); });
+  ChartCalibrationResult result;
+  try {
+    result = calibrateChart(shots, options, [&](double f, const std::string& d) { progress.update(f, d); });
+  } catch (const InvalidInput& e) {
+    // Too few usable patches: name the image with the most rejected patches and say why.
+    std::string worst;
+    int worst_clipped = -1, worst_non_uniform = 0;
+    for (size_t i = 0; i < shots.size(); ++i)
+      for (const bool raw : {false, true}) {
+        const auto& side = raw ? shots[i].raw : shots[i].measured;
+        int clipped = 0, non_uniform = 0;
+        for (const auto& p : side) clipped += p.clipped, non_uniform += !p.clipped && p.non_uniform;
+        if (!side.empty() && clipped + non_uniform > worst_clipped + worst_non_uniform) {
+          worst = raw ? args.raws[i] : args.images[i];
+          worst_clipped = clipped;
+          worst_non_uniform = non_uniform;
+        }
+      }
+    throw InvalidInput(e.reason() + "; in this image " + std::to_string(worst_clipped) + " of 24 patches are clipped, " +
+                           std::to_string(worst_non_uniform) + " non-uniform (wrong chart geometry? try --corners)",
+                       worst);
+  }
   progress.done();
 
   io::CalibrationReport report;
   report.command = "chart";
-  report.warnings = result.warnings;
+  report.timings = {{"sample", sample_seconds}, {"fit", seconds(fit_start)}, {"total", seconds(start)}};
+  report.warnings = input_warnings;
+  report.warnings.insert(report.warnings.end(), result.warnings.begin(), result.warnings.end());
   nlohmann::json channels_json = nlohmann::json::object();
   nlohmann::json patches_json = nlohmann::json::array();
   for (const auto& c : result.channels) {
@@ -201,21 +206,30 @@ int runChart(ChartArgs args) {
 
   std::vector<std::pair<std::string, std::vector<double>>> truth_curves;
   if (!args.truth.empty()) {
+    // The truth's covered range (a report's) is intersected with the calibration's, as `crfcal compare` does.
+    std::map<std::string, IntensityRange> truth_covered;
+    if (std::filesystem::path(args.truth).extension() == ".json") truth_covered = io::readReport(args.truth).covered_range;
     nlohmann::json comparison = nlohmann::json::object();
-    if (!args.quiet) std::printf("%-3s %10s %12s %14s %10s\n", "ch", "rmse[0,1]", "rmse covered", "scaled covered", "max");
+    if (!args.quiet)
+      std::printf("%-3s %10s %12s %12s %10s\n", "ch", "rmse[0,1]", "rmse covered", "rmse aligned", "max[0,1]");
     for (const auto& c : result.channels) {
       const std::string name = channelName(c.channel);
       const std::vector<double> truth = io::readCurveTable(args.truth, name, kCurveSamples);
-      double max_error = 0;
-      for (size_t i = 0; i < truth.size(); ++i) max_error = std::max(max_error, std::abs(truth[i] - c.fit.inverse[i]));
-      const double rmse = curveRmse(truth, c.fit.inverse);
-      const double covered = rmseOver(truth, c.fit.inverse, c.fit.covered_range.first, c.fit.covered_range.second);
-      const double scaled = scaledRmseOver(truth, c.fit.inverse, c.fit.covered_range.first, c.fit.covered_range.second);
-      comparison[name] = {{"rmse", rmse}, {"rmse_covered", covered}, {"rmse_covered_scale_aligned", scaled},
-                          {"max_error", max_error},
+      const auto it = truth_covered.find(name);
+      const ChannelComparison e =
+          compareCurves(truth, c.fit.inverse,
+                        it == truth_covered.end() ? std::optional<IntensityRange>() : std::optional<IntensityRange>(it->second),
+                        c.fit.covered_range);
+      comparison[name] = {{"rmse", e.rmse},
+                          {"rmse_covered", e.rmse_covered},
+                          {"rmse_covered_aligned", e.rmse_covered_aligned},
+                          {"scale_covered", e.scale_covered},
+                          {"covered_range", {e.covered.first, e.covered.second}},
+                          {"max_error", e.max_error},
                           {"ggcm_rmse", curveRmse(truth, sampleInverse(c.ggcm, kCurveSamples))}};
       truth_curves.emplace_back(name + " truth", truth);
-      std::printf("%-3s %10.4f %12.4f %14.4f %10.4f\n", name.c_str(), rmse, covered, scaled, max_error);
+      std::printf("%-3s %10.4f %12.4f %12.4f %10.4f\n", name.c_str(), e.rmse, e.rmse_covered, e.rmse_covered_aligned,
+                  e.max_error);
     }
     report.extra["truth"] = {{"file", args.truth}, {"phi_error", comparison}};
   }
@@ -230,7 +244,7 @@ int runChart(ChartArgs args) {
                      truth_curves);
   out.commit();
   if (!args.quiet) std::printf("%s", result.summary().c_str());
-  for (const auto& w : result.warnings) std::fprintf(stderr, "warning: %s\n", w.c_str());
+  for (const auto& w : report.warnings) std::fprintf(stderr, "warning: %s\n", w.c_str());
   std::printf("wrote %s/{report.json, chart_fit.png, chart_<i>.png}\n", args.output.c_str());
   return kExitOk;
 }
@@ -270,12 +284,23 @@ const CommandRegistration registration(
           ->check(CLI::Range(0, 25));
       command.add_option("--max-terms", args->options.fit.max_terms, "Largest K tried by cross-validation")
           ->check(CLI::Range(1, 25));
-      command.add_option("--smoothness", args->options.fit.smoothness, "Roughness penalty (see chart_calibration.hpp)")
+      command.add_option("--smoothness", args->options.fit.smoothness,
+                         "Roughness penalty on phi's second differences (ScaledFitOptions::smoothness)")
           ->check(CLI::NonNegativeNumber);
-      command.add_option("--inner", args->sampling.inner_fraction, "Sampled fraction of the patch pitch")
+      command.add_option("--exponent-smoothness", args->options.fit.exponent_smoothness,
+                         "Penalty on changes of phi's local exponent dlog(phi)/dlog(x); decides phi between the "
+                         "brightest patch and phi(1) = 1 (ScaledFitOptions::exponent_smoothness)")
+          ->check(CLI::NonNegativeNumber);
+          command.add_option("--inner", args->sampling.inner_fraction,
+                         "Side of the sampled square in each patch, as a fraction of the patch pitch")
           ->check(CLI::Range(0.1, 1.0));
+      command.add_option("--clip", args->sampling.clip_high,
+                         "A pixel at or above this value (unit scale, any channel) counts as clipped; a patch with "
+                         "more than 2 % such pixels is only a bound")
+          ->check(CLI::Range(0.5, 1.0));
       command.add_option("--truth", args->truth,
-                         "Reference curve (report.json or table) to compare with: phi RMSE per channel")
+                         "Reference curve (report.json or table) to compare with: phi RMSE per channel over [0,1], "
+                         "over the covered range, and there after the best common factor (as crfcal compare)")
           ->check(CLI::ExistingFile);
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runChart(*args); };

@@ -57,8 +57,10 @@ int runCompare(const CompareArgs& args) {
   options.samples = args.samples;
   const CurveComparison comparison = compareChannels(a.inverse_crf, b.inverse_crf, a.covered_range, b.covered_range, options);
 
-  const bool covered_only = args.tolerance_range == "covered";
-  const bool pass = !args.tolerance || comparison.withinTolerance(*args.tolerance, covered_only);
+  const CurveComparison::Range range = args.tolerance_range == "covered"   ? CurveComparison::Range::Covered
+                                       : args.tolerance_range == "aligned" ? CurveComparison::Range::CoveredAligned
+                                                                           : CurveComparison::Range::Full;
+  const bool pass = !args.tolerance || comparison.withinTolerance(*args.tolerance, range);
 
   if (!args.quiet) {
     std::printf("A: %s\nB: %s\n\n%s\n", args.a.c_str(), args.b.c_str(), comparison.summary().c_str());
@@ -122,9 +124,12 @@ int runCompare(const CompareArgs& args) {
                                   {"covered_range", {c.covered.first, c.covered.second}},
                                   {"covered_source", c.covered_source},
                                   {"rmse_covered", c.rmse_covered},
-                                  {"max_error_covered", c.max_error_covered}});
+                                  {"max_error_covered", c.max_error_covered},
+                                  {"scale_covered", c.scale_covered},
+                                  {"rmse_covered_aligned", c.rmse_covered_aligned}});
     json["worst_rmse"] = comparison.worst_rmse;
     json["worst_rmse_covered"] = comparison.worst_rmse_covered;
+    json["worst_rmse_covered_aligned"] = comparison.worst_rmse_covered_aligned;
     json["exposure_ratio"] = {{"a", {{"exif", ratioJson(a.ratio_exif)}, {"fitted", ratioJson(a.ratio_fitted)}}},
                               {"b", {{"exif", ratioJson(b.ratio_exif)}, {"fitted", ratioJson(b.ratio_fitted)}}}};
     if (args.tolerance) {
@@ -139,7 +144,10 @@ int runCompare(const CompareArgs& args) {
 
   if (args.tolerance) {
     std::printf("tolerance %.3e on RMSE over %s: %s\n", *args.tolerance,
-                covered_only ? "the covered range" : "[0,1]", pass ? "PASS" : "FAIL");
+                range == CurveComparison::Range::Full      ? "[0,1]"
+                : range == CurveComparison::Range::Covered ? "the covered range"
+                                                           : "the covered range, scale-aligned",
+                pass ? "PASS" : "FAIL");
     return pass ? kExitOk : kExitTolerance;
   }
   return kExitOk;
@@ -156,8 +164,10 @@ const CommandRegistration registration(
                          "Exit with status 3 if any channel's phi RMSE exceeds this")
           ->check(CLI::NonNegativeNumber);
       command.add_option("--tolerance-range", args->tolerance_range,
-                         "RMSE the tolerance applies to: full ([0,1]) or covered (range supported by data)")
-          ->check(CLI::IsMember({"full", "covered"}));
+                         "RMSE the tolerance applies to: full ([0,1]), covered (range supported by data) or "
+                         "aligned (covered range after the best factor a: A vs a*B, free of the phi(1)=1 "
+                         "normalisation)")
+          ->check(CLI::IsMember({"full", "covered", "aligned"}));
       command.add_option("--samples", args->samples, "Comparison grid points on [0,1]")->check(CLI::Range(2, 1 << 20));
       command.add_flag("-q,--quiet", args->quiet, "Print only the tolerance verdict");
       return [args] { return runCompare(*args); };

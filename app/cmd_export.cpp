@@ -66,15 +66,21 @@ const CommandRegistration registration(
                          "(default for hugin)")
           ->check(CLI::IsMember({"inverse", "forward"}));
       command.add_option("--size", args->size,
-                         "LUT nodes (default 4096 for cube/spi1d/clf, 256 for opencv/pfstools, 1024 for csv)")
-          ->check(CLI::Range(2, 1 << 24));
-      command.add_option("--range", args->range, "Input domain LO,HI within [0,1] (csv, cube, spi1d, clf)")
+                         "LUT nodes; 0 = the format's default: 4096 for cube/spi1d/clf, 256 for opencv (the only "
+                         "size MergeDebevec takes) and pfstools (2^bpp), 1024 for csv")
+          ->check(CLI::Range(0, 1 << 24));
+      command.add_option("--range", args->range,
+                         "Input domain LO,HI within [0,1] (csv, cube, spi1d, clf; default 0,1; readers clamp "
+                         "inputs outside it)")
           ->expected(2)
           ->delimiter(',');
       command.add_option("--channel", args->channel,
-                         "Write this channel into R, G and B (pfstools: one luminance 'IY' curve; hugin: default G)")
+                         "Write this channel into R, G and B (default: each channel its own curve; pfstools: one "
+                         "luminance 'IY' curve; hugin: one curve, default G)")
           ->check(CLI::IsMember({"R", "G", "B"}));
-      command.add_option("--title", args->title, "Title written into cube/clf files");
+      command.add_option("--title", args->title,
+                         "Title written into cube/clf files (default: 'crfcal inverse camera response', with "
+                         "--direction forward 'crfcal camera response')");
       return [args] { return runExport(*args); };
     });
 

@@ -25,6 +25,7 @@
 #include "crfcal/io/datasets.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/plot.hpp"
+#include "crfcal/level_mixture.hpp"
 #include "crfcal/noise_model.hpp"
 #include "crfcal/response_curve.hpp"
 #include "crfcal/simulation.hpp"
@@ -333,7 +334,7 @@ int runRatio(const StudyArgs& args) {
   StudyTable table;
   table.study = "ratio";
   table.header = {"set", "pair", "exif", "nominal_ratio", "fitted_ratio", "deviation", "method"};
-  std::vector<double> deviations_bracket;
+  std::vector<double> deviations_bracket, heldout_nominal, heldout_fitted;
   ResponseModel nikon_curve = GammaModel{2.2};
   // --- brackets: joint EMoR + exposure fit (span fixed to the nominal one)
   for (const auto& [set, scale] : std::vector<std::pair<std::string, double>>{
@@ -350,6 +351,24 @@ int runRatio(const StudyArgs& args) {
     }
     BracketFitOptions bo;
     const BracketFitResult fit = fitBracket(images, times, bo);
+    // Held-out: fit on the left half of the frames, predict each frame from the previous one on the right half —
+    // with the EXIF (nominal) exposures vs with the fitted ones (each with its own φ).
+    {
+      const cv::Rect left(0, 0, images[0].cols / 2, images[0].rows), right(images[0].cols / 2, 0,
+                                                                           images[0].cols - images[0].cols / 2, images[0].rows);
+      BracketFitOptions nominal_options = bo, fitted_options = bo;
+      nominal_options.fixed_exposures = true;
+      nominal_options.region = fitted_options.region = left;
+      const auto held_nominal = bracketPredictionRmse(images, fitBracket(images, times, nominal_options), right);
+      const auto held_fitted = bracketPredictionRmse(images, fitBracket(images, times, fitted_options), right);
+      heldout_nominal.push_back(255 * held_nominal.back());
+      heldout_fitted.push_back(255 * held_fitted.back());
+      table.rows.push_back({set, "held-out (right half; fit on the left half)", "all steps", "EXIF exposures",
+                            "fitted exposures", "RMSE " + fmt(255 * held_nominal.back(), 2) + " -> " +
+                                                    fmt(255 * held_fitted.back(), 2) + " (8-bit)",
+                            "frame j+1 predicted from frame j: psi(s_j phi(z_j))"});
+      table.extra["heldout_prediction_rmse_8bit"][set] = {{"exif", held_nominal}, {"fitted", held_fitted}};
+    }
     if (set == "nikon_e995_window") nikon_curve = fit.model;
     for (size_t j = 0; j + 1 < frames.size(); ++j) {
       const double nominal = times[j + 1] / times[j];
@@ -479,8 +498,12 @@ int runRatio(const StudyArgs& args) {
   s.cause = "nominal shutter speeds are rounded (1/60 for 1/64, 1/125 for 1/128: 1-EV steps are exact powers of 2), "
             "nominal ISO, and phones re-meter / tone-map each shot";
   s.extended = "r fitted from the images (joint EMoR + per-frame exposure, span fixed) or Eq. 25 r update in the fitter";
-  s.gain = "phi RMSE with r fixed wrong by 0/3/10/20%: " + fmt(at0, 4) + "/" + fmt(at3, 4) + "/" + fmt(at10, 4) + "/" +
-           fmt(at20, 4) + "; with Eq. 25 update: worst " + fmt(eq25_worst, 4);
+  std::string held;
+  for (size_t i = 0; i < heldout_nominal.size(); ++i)
+    held += (i ? ", " : "") + fmt(heldout_nominal[i], 2) + " -> " + fmt(heldout_fitted[i], 2);
+  s.gain = "held-out prediction RMSE of each bracket frame from the previous one (8-bit; EXIF -> fitted exposures): " +
+           held + "; phi RMSE with r fixed wrong by 0/3/10/20%: " + fmt(at0, 4) + "/" + fmt(at3, 4) + "/" +
+           fmt(at10, 4) + "/" + fmt(at20, 4) + "; with Eq. 25 update: worst " + fmt(eq25_worst, 4);
   table.summary.push_back(s);
   table.extra["sweep"] = {{"eps", eps}, {"true_ratio", true_r}};
   for (size_t e = 0; e < eps.size(); ++e) {
@@ -521,11 +544,13 @@ int runNoise(const StudyArgs& args) {
            {"D200", 1600}}) {
     const auto p = io::findNoiseProfile(profiles, model, iso);
     if (!p) continue;
-    const PoissonGaussianNoise n{p->a[1], p->b[1]};
+    // darktable's fits can give b < 0 (an artefact of fitting near the black level): taken as 0 (shot noise only).
+    const PoissonGaussianNoise n{p->a[1], std::max(p->b[1], 0.0)};
     if (model == "EOS 5D Mark II" && p->iso == 3200) bench_noise = n;
     const double s10 = intensityNoiseSigma(gamma22, n, 0.1), s50 = intensityNoiseSigma(gamma22, n, 0.5),
                  s90 = intensityNoiseSigma(gamma22, n, 0.9);
-    table.rows.push_back({p->name, "G: a=" + fmt(n.a * 1e6, 2) + "e-6 b=" + fmt(n.b * 1e6, 3) + "e-6",
+    table.rows.push_back({p->name, "G: a=" + fmt(n.a * 1e6, 2) + "e-6 b=" + fmt(p->b[1] * 1e6, 3) + "e-6" +
+                                       (p->b[1] < 0 ? " (b<0 taken as 0)" : ""),
                           "sigma_I(0.1)=" + fmt(255 * s10, 2), "sigma_I(0.5)=" + fmt(255 * s50, 2),
                           "sigma_I(0.9)=" + fmt(255 * s90, 2), "dark/bright=" + fmt(s10 / s90, 2)});
     io::PlotSeries s;
@@ -628,8 +653,10 @@ int runNoise(const StudyArgs& args) {
       for (int image : {1, 2})
         for (int kernel : {1, 4}) cases.push_back({image, kernel, curve, scale});
   if (static_cast<int>(cases.size()) > args.cases) cases.resize(static_cast<size_t>(args.cases));
-  const std::vector<std::string> variants{"default (debias, sigma estimated)", "debias, sigma from noise model",
-                                          "no noise handling", "denoise"};
+  const std::vector<std::string> variants{"crfcal default (no noise handling)",
+                                          "homoscedastic sigma (debias, one sigma estimated: the seed's model)",
+                                          "signal-dependent sigma(v) (debias, Poisson-Gaussian through the curve)",
+                                          "denoise"};
   std::map<double, std::vector<std::vector<double>>> errors;  // scale → variant → errors
   int done = 0;
   for (const auto& c : cases) {
@@ -649,22 +676,20 @@ int runNoise(const StudyArgs& args) {
     CrfFitOptions base;
     const CrfFitResult def = fitInverseCrf(pair.sharp, pair.blurred, kernel, base);
     err[0].push_back(curveRmse(def.inverse_crf, truth));
-    // sigma from the noise model pushed through the fitted curve, averaged over I's histogram (2nd pass)
+    CrfFitOptions homo = base;
+    homo.noise = NoiseHandling::debias;
+    homo.noise_sigma = -1;  // estimated from I (one σ)
+    err[1].push_back(curveRmse(fitInverseCrf(pair.sharp, pair.blurred, kernel, homo).inverse_crf, truth));
+    // σ(v) from the sensor model pushed through the first-pass fitted curve, on the fitter's level grid.
     const ResponseCurve fitted = ResponseCurve::fromSamples(def.inverse_crf);
-    double var = 0;
-    int count = 0;
-    for (int y = 0; y < pair.sharp.rows; y += 2)
-      for (int x = 0; x < pair.sharp.cols; x += 2) {
-        const double s = intensityNoiseSigma(fitted, so.sharp_noise, pair.sharp.at<double>(y, x));
-        var += s * s;
-        ++count;
-      }
-    CrfFitOptions model_sigma = base;
-    model_sigma.noise_sigma = std::min(0.5, std::sqrt(var / count));
-    err[1].push_back(curveRmse(fitInverseCrf(pair.sharp, pair.blurred, kernel, model_sigma).inverse_crf, truth));
-    CrfFitOptions none = base;
-    none.noise = NoiseHandling::none;
-    err[2].push_back(curveRmse(fitInverseCrf(pair.sharp, pair.blurred, kernel, none).inverse_crf, truth));
+    const int levels = std::max(naturalLevels(pair.sharp), naturalLevels(pair.blurred));  // the fitter's grid
+    CrfFitOptions per_level = base;
+    per_level.noise = NoiseHandling::debias;
+    per_level.noise_sigma_per_level.resize(static_cast<size_t>(levels));
+    for (int v = 0; v < levels; ++v)
+      per_level.noise_sigma_per_level[static_cast<size_t>(v)] =
+          std::min(0.5, intensityNoiseSigma(fitted, so.sharp_noise, static_cast<double>(v) / (levels - 1)));
+    err[2].push_back(curveRmse(fitInverseCrf(pair.sharp, pair.blurred, kernel, per_level).inverse_crf, truth));
     CrfFitOptions den = base;
     den.noise = NoiseHandling::denoise;
     err[3].push_back(curveRmse(fitInverseCrf(pair.sharp, pair.blurred, kernel, den).inverse_crf, truth));
@@ -696,11 +721,13 @@ int runNoise(const StudyArgs& args) {
             "psi'(phi(v)): large in the darks, small near white (JPEG denoising flattens it further)";
   s.extended = "sigma_I(v) = psi'(phi(v)) sqrt(a phi(v) + b): misfit " + fmt(mean(mis_curve), 3) +
                " (a v + b in intensity: " + fmt(mean(mis_lin), 3) +
-               "); simulator simulatePairPoissonGaussian; fitter sigma from the model (the fitter takes one sigma)";
+               "); simulator simulatePairPoissonGaussian; fitter: sigma(v) per level (noise_sigma_per_level) in the "
+               "debiasing instead of one sigma";
   std::ostringstream gain;
   for (const auto& [scale, m] : mean_err)
-    gain << "x" << fmt(scale, 0) << ": phi RMSE default " << fmt(m[0], 4) << " -> model sigma " << fmt(m[1], 4) << " ("
-         << pct(m[1] / m[0] - 1) << "), none " << fmt(m[2], 4) << ", denoise " << fmt(m[3], 4) << "; ";
+    gain << "x" << fmt(scale, 0) << ": phi RMSE homoscedastic sigma " << fmt(m[1], 4) << " -> sigma(v) " << fmt(m[2], 4)
+         << " (" << pct(m[2] / m[1] - 1) << "); crfcal default (no noise handling) " << fmt(m[0], 4) << ", denoise "
+         << fmt(m[3], 4) << "; ";
   s.gain = gain.str();
   table.summary.push_back(s);
   table.extra["misfit"] = {{"constant", mis_const}, {"intensity_affine", mis_lin}, {"through_curve", mis_curve}};

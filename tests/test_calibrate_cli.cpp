@@ -1,12 +1,15 @@
 // crfcal calibrate: end-to-end on the bundled pair, and bad input → one clear line, non-zero exit, no DIR.
+#include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <random>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "crfcal/curve_comparison.hpp"
 #include "crfcal/io/exif.hpp"
 #include "test_support.hpp"
 
@@ -25,15 +28,26 @@ void expectCleanFailure(const test::CommandResult& r, const fs::path& out, const
 }
 
 // Writes a JPEG with EXIF.
-void writeShot(const fs::path& path, const cv::Mat& image, double iso, double t) {
+void writeShot(const fs::path& path, const cv::Mat& image, double iso, double t, const std::string& model = "test") {
   cv::imwrite(path.string(), image);
   ExifExposure e;
   e.iso = iso;
   e.exposure_time = t;
   e.f_number = 4;
   e.make = "crfcal";
-  e.model = "test";
+  e.model = model;
   io::writeExif(path, e);
+}
+
+std::vector<double> truthCurve() {
+  std::ifstream in(pairDir() / "truth.json");
+  return nlohmann::json::parse(in)["inverse_crf"].get<std::vector<double>>();
+}
+
+double rmse(const std::vector<double>& a, const std::vector<double>& b) {
+  double s = 0;
+  for (size_t i = 0; i < a.size(); ++i) s += (a[i] - b[i]) * (a[i] - b[i]);
+  return std::sqrt(s / a.size());
 }
 
 TEST(CalibrateCli, BundledPairWithKnownKernel) {
@@ -51,6 +65,62 @@ TEST(CalibrateCli, BundledPairWithKnownKernel) {
   EXPECT_FALSE(report["inverse_crf"].contains("R"));
   EXPECT_NEAR(report["exposure_ratio"]["exif"].get<double>(), 1.0375, 0.01);
   EXPECT_TRUE(report["effects"].is_array());
+}
+
+// The main job end to end on the bundled semi-real pair (real photo, measured curve, Levin kernel, handheld shift
+// and rotation, noise, JPEG, EXIF): the kernel AND the registration unknown.
+TEST(CalibrateCli, BundledPairEstimatedKernel) {
+  if (!fs::exists(pairDir() / "sharp.jpg")) GTEST_SKIP();
+  test::TempDir dir;
+  const auto r = test::run(bin() + " calibrate " + (pairDir() / "sharp.jpg").string() + " " +
+                           (pairDir() / "blurred.jpg").string() + " --channels g -o " + (dir / "out").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* stage : {"decode", "register", "kernel", "fit", "write"})
+    EXPECT_NE(r.output.find(std::string(stage) + " done in"), std::string::npos) << stage << "\n" << r.output;
+  std::ifstream in(dir / "out" / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  const auto phi = report["inverse_crf"]["G"].get<std::vector<double>>();
+  ASSERT_EQ(phi.size(), 1024u);
+  EXPECT_LT(rmse(phi, truthCurve()), 0.02);
+  EXPECT_NEAR(report["exposure_ratio"]["fitted"].get<double>(), 1.0, 0.03);  // truth 1.0, EXIF 1.04
+  EXPECT_TRUE(report["kernel"]["estimated"].get<bool>());
+  EXPECT_LT(report["kernel"]["border_mass"].get<double>(), 0.04);
+  EXPECT_GE(report["rounds"].size(), 2u);
+  for (const char* key : {"models", "pixels_used", "timings", "warnings", "effects", "registration", "covered_range"})
+    EXPECT_TRUE(report.contains(key)) << key;
+  EXPECT_TRUE(report["timings"].contains("register") && report["timings"].contains("kernel") &&
+              report["timings"].contains("fit"));
+}
+
+// One shot held in portrait, the other in landscape: the sharp one is turned, not rejected.
+TEST(CalibrateCli, PortraitAgainstLandscapeIsTurned) {
+  if (!fs::exists(pairDir() / "sharp.jpg")) GTEST_SKIP();
+  test::TempDir dir;
+  cv::Mat sharp = cv::imread((pairDir() / "sharp.jpg").string());
+  cv::rotate(sharp, sharp, cv::ROTATE_90_COUNTERCLOCKWISE);
+  cv::imwrite((dir / "portrait.png").string(), sharp);
+  cv::Mat blurred = cv::imread((pairDir() / "blurred.jpg").string());
+  cv::imwrite((dir / "landscape.png").string(), blurred);
+  const auto r = test::run(bin() + " calibrate -q " + (dir / "portrait.png").string() + " " +
+                           (dir / "landscape.png").string() + " --ratio 1.04 --blurred second --channels g --rounds 0 -o " +
+                           (dir / "out").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("was turned by"), std::string::npos) << r.output;
+  std::ifstream in(dir / "out" / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  EXPECT_LT(rmse(report["inverse_crf"]["G"].get<std::vector<double>>(), truthCurve()), 0.03);
+}
+
+TEST(CalibrateCli, FixRatioKeepsTheGivenRatio) {
+  if (!fs::exists(pairDir() / "sharp.jpg")) GTEST_SKIP();
+  test::TempDir dir;
+  const auto r = test::run(bin() + " calibrate -q " + (pairDir() / "sharp.jpg").string() + " " +
+                           (pairDir() / "blurred.jpg").string() + " --channels g --rounds 0 --ratio 1.2 --fix-ratio -o " +
+                           (dir / "out").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream in(dir / "out" / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  EXPECT_DOUBLE_EQ(report["exposure_ratio_per_channel"]["G"].get<double>(), 1.2);
 }
 
 TEST(CalibrateCli, MissingFile) {
@@ -71,6 +141,33 @@ TEST(CalibrateCli, CorruptJpeg) {
   expectCleanFailure(r, dir / "out", "bad.jpg");
 }
 
+TEST(CalibrateCli, DirectoryInsteadOfImage) {
+  test::TempDir dir;
+  fs::create_directories(dir / "notanimage.jpg");
+  cv::imwrite((dir / "ok.jpg").string(), cv::Mat(64, 64, CV_8UC3, cv::Scalar(1, 2, 3)));
+  const auto r = test::run(bin() + " calibrate " + (dir / "notanimage.jpg").string() + " " + (dir / "ok.jpg").string() +
+                           " -o " + (dir / "out").string());
+  expectCleanFailure(r, dir / "out", "notanimage.jpg");
+}
+
+TEST(CalibrateCli, EmptyFile) {
+  test::TempDir dir;
+  { std::ofstream out(dir / "empty.jpg"); }
+  cv::imwrite((dir / "ok.jpg").string(), cv::Mat(64, 64, CV_8UC3, cv::Scalar(1, 2, 3)));
+  const auto r = test::run(bin() + " calibrate " + (dir / "ok.jpg").string() + " " + (dir / "empty.jpg").string() +
+                           " -o " + (dir / "out").string());
+  expectCleanFailure(r, dir / "out", "empty.jpg");
+}
+
+TEST(CalibrateCli, DifferentCameras) {
+  test::TempDir dir;
+  writeShot(dir / "a.jpg", test::levinImage(1) * 255, 800, 0.01, "body one");
+  writeShot(dir / "b.jpg", test::levinImage(1) * 255, 100, 0.08, "body two");
+  const auto r = test::run(bin() + " calibrate " + (dir / "a.jpg").string() + " " + (dir / "b.jpg").string() +
+                           " -o " + (dir / "out").string());
+  expectCleanFailure(r, dir / "out", "different cameras");
+}
+
 TEST(CalibrateCli, CorruptRaw) {
   test::TempDir dir;
   {
@@ -80,6 +177,14 @@ TEST(CalibrateCli, CorruptRaw) {
   const auto r = test::run(bin() + " calibrate " + (dir / "bad.nef").string() + " " + (dir / "bad.nef").string() +
                            " -o " + (dir / "out").string());
   expectCleanFailure(r, dir / "out", "bad.nef");
+  // An existing output directory is left as it was (replaced only by a complete result).
+  fs::create_directories(dir / "previous");
+  { std::ofstream(dir / "previous" / "keep.txt") << "old"; }
+  const auto again = test::run(bin() + " calibrate " + (dir / "bad.nef").string() + " " + (dir / "bad.nef").string() +
+                               " -o " + (dir / "previous").string());
+  EXPECT_NE(again.exit_code, 0);
+  EXPECT_TRUE(fs::exists(dir / "previous" / "keep.txt"));
+  EXPECT_FALSE(fs::exists(dir / "previous" / "report.json"));
 }
 
 TEST(CalibrateCli, DifferentSizes) {
@@ -120,6 +225,10 @@ TEST(CalibrateCli, EdgelessPair) {
   const auto r = test::run(bin() + " calibrate " + (dir / "a.jpg").string() + " " + (dir / "b.jpg").string() +
                            " --no-register -o " + (dir / "out").string());
   expectCleanFailure(r, dir / "out", "edges");
+  // With registration too: "no edges", not "does not overlap".
+  const auto registered = test::run(bin() + " calibrate " + (dir / "a.jpg").string() + " " + (dir / "b.jpg").string() +
+                                    " -o " + (dir / "out").string());
+  expectCleanFailure(registered, dir / "out", "no edges");
 }
 
 TEST(CalibrateCli, SaturatedFrames) {
@@ -143,6 +252,167 @@ TEST(CalibrateCli, KernelHitsSizeLimit) {
   const auto r = test::run(bin() + " calibrate " + (dir / "a.png").string() + " " + (dir / "b.png").string() +
                            " --blurred second --no-register --kernel-size 7 -o " + (dir / "out").string());
   expectCleanFailure(r, dir / "out", "--kernel-size");
+}
+
+
+// ---- --raw-truth: the RAW (linear data) of one shot of the pair -------------------------------------------------
+
+// A small colour pair with a known response φ = x^2.2 (ψ = e^(1/2.2)), r = 1, Levin kernel 3, and the linear
+// irradiance of both shots as 16-bit PNGs framed like LibRaw output against a camera JPEG (1.25x larger, offset).
+struct TruthPair {
+  fs::path sharp, blurred, sharp_linear, blurred_linear;
+};
+
+cv::Mat framedLikeRaw(const cv::Mat& linear) {
+  // 1.25x the JPEG's size, shifted by (7, 5) px, in a 16-bit frame with a margin (sensor border).
+  cv::Mat A = (cv::Mat_<double>(2, 3) << 1.25, 0, 7, 0, 1.25, 5);
+  cv::Mat out;
+  cv::warpAffine(linear, out, A, cv::Size(int(linear.cols * 1.25) + 14, int(linear.rows * 1.25) + 10), cv::INTER_CUBIC,
+                 cv::BORDER_REFLECT);
+  cv::Mat out16;
+  out.convertTo(out16, CV_16U, 65535.0);
+  return out16;
+}
+
+TruthPair makeTruthPair(const fs::path& dir) {
+  const cv::Mat grey = test::levinImage(1);
+  cv::Mat base;
+  cv::pow(grey, 2.2, base);
+  base = 0.03 + 0.8 * base;
+  std::vector<cv::Mat> planes{0.75 * base, 0.95 * base, 1.0 * base};  // B, G, R gains: a warm, non-grey scene
+  cv::Mat E;
+  cv::merge(planes, E);
+  cv::Mat EB;
+  cv::filter2D(E, EB, -1, test::levinKernel(3), cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
+  std::mt19937 rng(7);
+  std::normal_distribution<double> unit(0.0, 1.0);
+  auto render = [&](const cv::Mat& e, double noise) {
+    cv::Mat out(e.size(), CV_8UC3);
+    for (int y = 0; y < e.rows; ++y)
+      for (int x = 0; x < e.cols; ++x)
+        for (int c = 0; c < 3; ++c) {
+          const double v = std::clamp(e.at<cv::Vec3d>(y, x)[c] + noise * unit(rng), 0.0, 1.0);
+          out.at<cv::Vec3b>(y, x)[c] = cv::saturate_cast<uchar>(255 * std::pow(v, 1 / 2.2));
+        }
+    return out;
+  };
+  TruthPair p{dir / "sharp.jpg", dir / "blurred.jpg", dir / "sharp_linear.png", dir / "blurred_linear.png"};
+  writeShot(p.sharp, render(E, 0.004), 800, 0.01);
+  writeShot(p.blurred, render(EB, 0.001), 100, 0.08);
+  cv::imwrite(p.sharp_linear.string(), framedLikeRaw(E));
+  cv::imwrite(p.blurred_linear.string(), framedLikeRaw(EB));
+  return p;
+}
+
+std::string truthCommand(const TruthPair& p, const fs::path& out, const std::string& extra) {
+  return bin() + " calibrate -q " + p.sharp.string() + " " + p.blurred.string() + " --kernel " +
+         (test::samples() / "levin09" / "kernel03.txt").string() + " --rounds 0 " + extra + " -o " + out.string();
+}
+
+// φ against x^2.2 over the truth's covered range. The shape (scale-aligned RMSE) is what one shot's pixels determine;
+// the normalisation φ(1) = 1 rests on the EMoR extrapolation above the brightest flat level (chart_calibration.hpp).
+ChannelComparison againstGamma(const std::vector<double>& phi, const std::vector<double>& range) {
+  std::vector<double> truth(phi.size());
+  for (size_t i = 0; i < truth.size(); ++i) truth[i] = std::pow(double(i) / (truth.size() - 1), 2.2);
+  return compareCurves(phi, truth, IntensityRange{range.at(0), range.at(1)});
+}
+
+TEST(CalibrateCli, RawTruthOfTheSharpShotIsReportedAndCompared) {
+  test::TempDir dir;
+  const TruthPair p = makeTruthPair(dir.path());
+  const auto r = test::run(truthCommand(p, dir / "out", "--raw-truth " + p.sharp_linear.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("pair phi vs RAW truth"), std::string::npos) << r.output;
+  std::ifstream in(dir / "out" / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  ASSERT_TRUE(report.contains("raw_truth")) << report.dump(1);
+  const auto& truth = report["raw_truth"];
+  EXPECT_EQ(truth["file"].get<std::string>(), p.sharp_linear.string());
+  EXPECT_EQ(truth["shot"].get<std::string>(), "sharp");  // the linear PNG has no EXIF: the default
+  EXPECT_FALSE(truth["camera_raw"].get<bool>());
+  for (const char* c : {"R", "G", "B"}) {
+    const auto phi = truth["inverse_crf"][c].get<std::vector<double>>();
+    ASSERT_EQ(phi.size(), 1024u) << c;
+    const auto range = truth["covered_range"][c].get<std::vector<double>>();
+    ASSERT_EQ(range.size(), 2u);
+    EXPECT_LT(range[0], 0.3) << c;
+    EXPECT_GT(range[1], 0.65) << c;
+    // The truth recovers the response that made the JPEG, through the geometric difference and the noise.
+    const ChannelComparison shape = againstGamma(phi, range);
+    EXPECT_LT(shape.rmse_covered_aligned, 0.005) << c;
+    EXPECT_LT(shape.rmse_covered, 0.04) << c;
+    EXPECT_GT(truth["channels"][c]["explained_variance"].get<double>(), 0.98) << c;
+    const auto& cmp = truth["comparison"][c];
+    for (const char* key : {"rmse", "rmse_covered", "rmse_covered_aligned", "max_error"})
+      EXPECT_TRUE(cmp[key].is_number() && std::isfinite(cmp[key].get<double>())) << c << " " << key;
+    // The comparison is the pair's φ against this truth: recompute one number from the report itself.
+    const auto pair_phi = report["inverse_crf"][c].get<std::vector<double>>();
+    EXPECT_NEAR(cmp["rmse"].get<double>(), rmse(pair_phi, phi), 1e-6) << c;
+  }
+  // 1.25x larger frame, offset: the registration found the scale.
+  const auto H = truth["registration"]["matrix"].get<std::vector<double>>();
+  ASSERT_EQ(H.size(), 9u);
+  EXPECT_NEAR(H[0] * truth["registration"]["linear_scale"].get<double>(), 0.8, 0.02);
+  EXPECT_TRUE(fs::exists(dir / "out" / "curve.png"));
+}
+
+TEST(CalibrateCli, RawTruthShotIsFoundByExif) {
+  test::TempDir dir;
+  const TruthPair p = makeTruthPair(dir.path());
+  ExifExposure e;  // the blurred shot's settings
+  e.iso = 100;
+  e.exposure_time = 0.08;
+  e.f_number = 4;
+  e.make = "crfcal";
+  e.model = "test";
+  io::writeExif(p.blurred_linear, e);
+  const auto r = test::run(truthCommand(p, dir / "out", "--channels g --raw-truth " + p.blurred_linear.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream in(dir / "out" / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  const auto& truth = report["raw_truth"];
+  EXPECT_EQ(truth["shot"].get<std::string>(), "blurred") << truth["shot_reason"];
+  EXPECT_FALSE(truth["inverse_crf"].contains("R"));  // --channels g: G only, like the pair
+  const auto range = truth["covered_range"]["G"].get<std::vector<double>>();
+  const ChannelComparison shape = againstGamma(truth["inverse_crf"]["G"].get<std::vector<double>>(), range);
+  EXPECT_LT(shape.rmse_covered_aligned, 0.005);
+  EXPECT_LT(shape.rmse_covered, 0.04);
+  // A settings mismatch with both shots is an error naming the file.
+  e.iso = 200;
+  e.exposure_time = 0.02;
+  io::writeExif(p.blurred_linear, e);
+  const auto mismatch = test::run(truthCommand(p, dir / "out2", "--raw-truth " + p.blurred_linear.string()));
+  expectCleanFailure(mismatch, dir / "out2", "matches neither shot");
+  EXPECT_NE(mismatch.output.find(p.blurred_linear.string()), std::string::npos) << mismatch.output;
+}
+
+TEST(CalibrateCli, RawTruthBadInput) {
+  test::TempDir dir;
+  const TruthPair p = makeTruthPair(dir.path());
+  const fs::path out = dir / "out";
+  // Missing file.
+  expectCleanFailure(test::run(truthCommand(p, out, "--raw-truth " + (dir / "missing.cr2").string())), out,
+                     "missing.cr2: file not found");
+  // Corrupt RAW.
+  {
+    std::ofstream bad(dir / "bad.nef", std::ios::binary);
+    bad << "II*\0garbage garbage garbage";
+  }
+  expectCleanFailure(test::run(truthCommand(p, out, "--raw-truth " + (dir / "bad.nef").string())), out, "bad.nef");
+  // A JPEG is not linear data.
+  expectCleanFailure(test::run(truthCommand(p, out, "--raw-truth " + p.sharp.string())), out, "is a JPEG");
+  // A rendered image taken for linear: the JPEG's own pixels as a PNG.
+  cv::imwrite((dir / "rendered.png").string(), cv::imread(p.sharp.string()));
+  expectCleanFailure(test::run(truthCommand(p, out, "--raw-truth " + (dir / "rendered.png").string())), out,
+                     "looks non-linear");
+  // Linear data of another scene.
+  cv::Mat other;
+  cv::pow(test::levinImage(3), 2.2, other);
+  other.convertTo(other, CV_16U, 65535.0);
+  cv::imwrite((dir / "other.png").string(), other);
+  const auto r = test::run(truthCommand(p, out, "--raw-truth " + (dir / "other.png").string()));
+  expectCleanFailure(r, out, "does not register with the JPEG");
+  EXPECT_NE(r.output.find("other.png"), std::string::npos) << r.output;
 }
 
 }  // namespace

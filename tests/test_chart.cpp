@@ -9,9 +9,11 @@
 
 #include "crfcal/chart_calibration.hpp"
 #include "crfcal/colorchecker.hpp"
+#include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/response_curve.hpp"
 #include "crfcal/io/chart_io.hpp"
+#include "crfcal/io/exif.hpp"
 #include "crfcal/io/report.hpp"
 #include "crfcal/io/response_io.hpp"
 #include "test_support.hpp"
@@ -88,6 +90,7 @@ TEST(CameraCurve, BundledShotsReproduceTheBundledCurve) {
   options.use_raw = true;
   options.raw_neutral_only = true;
   options.channels = {1};
+  options.fit.exponent_smoothness = 0;  // as `crfcal curves middlebury`, which made the bundled tables
   const ChartCalibrationResult result = calibrateChart(bundledShots(true), options);
   ASSERT_EQ(result.channels.size(), 1u);
   const ChartChannelResult& g = result.channels.front();
@@ -256,12 +259,140 @@ TEST(Chart, CommandWritesReportWithThreeChannelsAndGgcmModels) {
   std::ifstream in(dir / "out" / "report.json");
   const nlohmann::json json = nlohmann::json::parse(in);
   EXPECT_FALSE(json.at("patch_residuals").empty());
-  EXPECT_LT(json.at("truth").at("phi_error").at("G").at("rmse_covered_scale_aligned").get<double>(), 0.02);
+  EXPECT_LT(json.at("truth").at("phi_error").at("G").at("rmse_covered_aligned").get<double>(), 0.02);
   // Errors are one line with the reason.
   const auto bad = test::run(test::crfcalBinary().string() + " chart" + images + " --raw '" +
                              (cam / "wb1i1e1-raw.png").string() + "' -o '" + (dir / "bad").string() + "'");
   EXPECT_EQ(bad.exit_code, 1) << bad.output;
   EXPECT_FALSE(fs::exists(dir / "bad"));
+}
+
+TEST(Chart, ExifExposuresGiveOneCommonScale) {
+  // The four bundled JPEG shots with EXIF written into copies (ISO 100, f/4, t ∝ the exposure the RAW grey
+  // patches show): the command reads the ratios, fits one scale instead of one per shot, and still agrees with
+  // the RAW→JPEG truth.
+  test::TempDir dir;
+  const std::vector<ChartShot> shots = bundledShots(true);
+  const auto listed = io::listMiddleburyShots(test::samples() / "middlebury" / kBundledCamera);
+  ASSERT_EQ(listed.size(), shots.size());
+  std::vector<double> exposure;
+  for (const auto& shot : shots) {
+    // Median ratio of the unclipped RAW grey patches (G) to the first shot's.
+    std::vector<double> ratios;
+    for (int p = 18; p < 24; ++p) {
+      const auto& a = shots.front().raw[static_cast<size_t>(p)];
+      const auto& b = shot.raw[static_cast<size_t>(p)];
+      if (a.usable() && b.usable() && a.median[1] > 0.03 && b.median[1] > 0.03) ratios.push_back(b.median[1] / a.median[1]);
+    }
+    ASSERT_FALSE(ratios.empty());
+    std::nth_element(ratios.begin(), ratios.begin() + ratios.size() / 2, ratios.end());
+    exposure.push_back(ratios[ratios.size() / 2]);
+  }
+  std::string images;
+  for (size_t i = 0; i < listed.size(); ++i) {
+    const fs::path copy = dir / listed[i].jpg.filename();
+    fs::copy_file(listed[i].jpg, copy);
+    ExifExposure exif;
+    exif.iso = 100;
+    exif.exposure_time = exposure[i] / 100;
+    exif.f_number = 4.0;
+    io::writeExif(copy, exif);
+    images += " '" + copy.string() + "'";
+  }
+  const auto run = test::run(test::crfcalBinary().string() + " chart" + images + " --channels G -q -o '" +
+                             (dir / "out").string() + "'");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_EQ(run.output.find("free exposure scale"), std::string::npos) << run.output;
+  std::ifstream in(dir / "out" / "report.json");
+  const nlohmann::json json = nlohmann::json::parse(in);
+  const auto& inputs = json.at("chart").at("inputs");
+  ASSERT_EQ(inputs.size(), listed.size());
+  for (size_t i = 0; i < listed.size(); ++i)  // ISO·t/N² relative to the first shot (EXIF rationals round t)
+    EXPECT_NEAR(inputs[i].at("exposure").get<double>() / inputs[0].at("exposure").get<double>(), exposure[i],
+                0.01 * exposure[i]);
+  EXPECT_EQ(json.at("chart").at("channels").at("G").at("scales").size(), 1u);
+
+  ChartCalibrationOptions truth_options;
+  truth_options.use_raw = true;
+  truth_options.raw_neutral_only = true;
+  truth_options.channels = {1};
+  const ChartCalibrationResult truth = calibrateChart(shots, truth_options);
+  const io::CalibrationReport report = io::readReport(dir / "out" / "report.json");
+  const ChannelComparison e = compareCurves(truth.channels.front().fit.inverse, report.inverse_crf.at("G"),
+                                            truth.channels.front().fit.covered_range, report.covered_range.at("G"));
+  EXPECT_LT(e.rmse_covered_aligned, 0.015);
+  EXPECT_LT(e.rmse, 0.04);
+}
+
+TEST(Chart, ExponentPenaltyKeepsTheUnobservedTopFromJumping) {
+  // φ = x^1.6 observed only up to x ≈ 0.8 with one common scale (a RAW-like reference): without the
+  // local-exponent penalty the EMoR fit may bend steeply above the data and rescale everything; with it the
+  // continuation follows the exponent the data show. The data term alone cannot tell the two apart.
+  const ResponseCurve truth(GammaModel{1.6});
+  std::vector<ScaledObservation> obs;
+  std::mt19937 rng(5);
+  std::normal_distribution<double> noise(0, 0.002);
+  for (int i = 1; i <= 40; ++i) {
+    const double x = 0.02 * i;  // up to 0.8
+    obs.push_back({ScaledObservation::Kind::Exact, x, 0.7 * (truth.inverse(x) + noise(rng)), 0, i % 8, 1});
+  }
+  ScaledFitOptions with;
+  ScaledFitOptions without;
+  without.exponent_smoothness = 0;
+  const ScaledFitResult a = fitScaledInverse(obs, with);
+  const ScaledFitResult b = fitScaledInverse(obs, without);
+  const std::vector<double> exact = truth.sample(kCurveSamples);
+  EXPECT_LT(curveRmse(exact, a.inverse), 0.01) << a.summary();  // without the penalty: 0.0196
+  EXPECT_NEAR(a.scales[0], 0.7, 0.02);
+  // Both fit the data equally well: the difference is only above x = 0.8.
+  EXPECT_LT(a.rmse, 0.004);
+  EXPECT_LT(b.rmse, 0.004);
+  EXPECT_LE(curveRmse(exact, a.inverse), curveRmse(exact, b.inverse) + 1e-3) << b.summary();
+}
+
+TEST(Chart, CompiledReferenceMatchesTheBundledTable) {
+  // chart::reference() is transcribed from samples/colorchecker/colorchecker_classic_reference.csv (see its
+  // PROVENANCE.md): names, Y and the linear sRGB columns must agree with the file.
+  std::ifstream in(test::samples() / "colorchecker" / "colorchecker_classic_reference.csv");
+  ASSERT_TRUE(in) << "samples/colorchecker/colorchecker_classic_reference.csv missing";
+  std::string line, header;
+  while (std::getline(in, line) && !line.empty() && line[0] == '#') {
+  }
+  header = line;
+  auto split = [](const std::string& text) {
+    std::vector<std::string> fields;
+    std::string field;
+    bool quoted = false;
+    for (char ch : text) {
+      if (ch == '"') quoted = !quoted;
+      else if (ch == ',' && !quoted) fields.push_back(field), field.clear();
+      else field += ch;
+    }
+    fields.push_back(field);
+    return fields;
+  };
+  const std::vector<std::string> columns = split(header);
+  auto column = [&](const std::string& name) {
+    const auto it = std::find(columns.begin(), columns.end(), name);
+    EXPECT_NE(it, columns.end()) << name;
+    return static_cast<size_t>(it - columns.begin());
+  };
+  const size_t name = column("name"), Y = column("Y_babel"), r = column("R_lin"), g = column("G_lin"), b = column("B_lin");
+  int rows = 0;
+  while (std::getline(in, line)) {
+    if (line.empty()) continue;
+    const std::vector<std::string> f = split(line);
+    ASSERT_LT(rows, chart::kPatches);
+    const chart::PatchReference& ref = chart::reference()[static_cast<size_t>(rows)];
+    EXPECT_EQ(std::string(ref.name), f.at(name)) << rows;
+    EXPECT_DOUBLE_EQ(ref.Y, std::stod(f.at(Y))) << ref.name;
+    EXPECT_DOUBLE_EQ(ref.linear[0], std::stod(f.at(r))) << ref.name;
+    EXPECT_DOUBLE_EQ(ref.linear[1], std::stod(f.at(g))) << ref.name;
+    EXPECT_DOUBLE_EQ(ref.linear[2], std::stod(f.at(b))) << ref.name;
+    EXPECT_EQ(ref.neutral, rows >= 18) << ref.name;
+    ++rows;
+  }
+  EXPECT_EQ(rows, chart::kPatches);
 }
 
 TEST(Chart, DetectsTheChartInARealPhotoWithMcc) {

@@ -108,6 +108,25 @@ TEST(Compare, GreyAgainstRgbComparesEveryChannel) {
                InvalidInput);
 }
 
+TEST(Compare, ScaleAlignedErrorIgnoresTheNormalisation) {
+  // B = A/0.8 over the covered range (a different φ(1) = 1 normalisation of the same shape, e.g. two fits that
+  // extrapolate differently above their data): large plain error, zero shape error with a = 0.8.
+  const auto a = tabulate(1024, [](double x) { return 0.8 * std::pow(x, 2.2) + 0.2 * std::pow(x, 12.0); });
+  const auto b = tabulate(1024, [](double x) { return std::pow(x, 2.2); });
+  const ChannelComparison c = compareCurves(a, b, IntensityRange{0.05, 0.6}, std::nullopt);
+  EXPECT_GT(c.rmse_covered, 0.02);
+  EXPECT_NEAR(c.scale_covered, 0.8, 2e-3);
+  EXPECT_LT(c.rmse_covered_aligned, 1e-3);
+  // A shape difference survives the alignment.
+  const auto d = tabulate(1024, [](double x) { return std::pow(x, 1.8); });
+  EXPECT_GT(compareCurves(d, b, IntensityRange{0.05, 0.6}, std::nullopt).rmse_covered_aligned, 0.01);
+  // Tolerances on the three RMSEs.
+  const CurveComparison cc = compareChannels({{"G", a}}, {{"G", b}}, {{"G", {0.05, 0.6}}});
+  EXPECT_FALSE(cc.withinTolerance(0.01, CurveComparison::Range::Covered));
+  EXPECT_TRUE(cc.withinTolerance(0.01, CurveComparison::Range::CoveredAligned));
+  EXPECT_DOUBLE_EQ(cc.worst_rmse_covered_aligned, cc.channels[0].rmse_covered_aligned);
+}
+
 // ---- the command ----
 
 io::CalibrationReport reportOf(const ResponseModel& model, double ratio) {
@@ -156,6 +175,11 @@ TEST(Compare, CommandTableJsonPlotAndTolerance) {
   EXPECT_NE(result.output.find("PASS"), std::string::npos);
   result = test::run(binary + args + " --tolerance 1e-9 --tolerance-range covered -q");
   EXPECT_EQ(result.exit_code, 3) << result.output;
+  result = test::run(binary + args + " --tolerance 1e-9 --tolerance-range aligned -q");
+  EXPECT_EQ(result.exit_code, 3) << result.output;
+  EXPECT_NE(result.output.find("scale-aligned"), std::string::npos) << result.output;
+  EXPECT_TRUE(json["channels"][0].contains("rmse_covered_aligned"));
+  EXPECT_GT(json["channels"][0]["scale_covered"].get<double>(), 0.0);
 }
 
 TEST(Compare, CommandErrorsAreOneLine) {

@@ -62,7 +62,9 @@ TEST(NoiseEstimation, RecoversSigmaOfGaussianNoise) {
 
 TEST(NoiseDebias, ExpectationOfDebiasedFunctionIsTheCleanFunction) {
   const double sigma = 0.07;
-  const NoiseDebias debias(NoiseDebiasOptions{256, sigma, 1e-4});
+  NoiseDebiasOptions options;
+  options.sigma = sigma;
+  const NoiseDebias debias(options);
   std::vector<double> f(256);
   for (int v = 0; v < 256; ++v) f[v] = std::pow(v / 255.0, 2.2);
   const std::vector<double> g = debias.apply(f);

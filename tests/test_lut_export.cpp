@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 #include <OpenColorIO/OpenColorIO.h>
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/photo.hpp>
 
 #include "crfcal/emor.hpp"
@@ -604,6 +605,119 @@ TEST(LutExport, CommandLineWritesEveryFormat) {
   result = test::run(binary + " export " + report + " -f opencv --size 100 -o " + (dir / "x.yml").string());
   EXPECT_EQ(result.exit_code, 1) << result.output;
   EXPECT_FALSE(fs::exists(dir / "x.yml"));
+}
+
+// ---- the real programs, when installed (Debian: pfstools, hugin-tools); skipped otherwise ----
+
+bool installed(const std::string& program) { return test::run("command -v " + program + " >/dev/null 2>&1").exit_code == 0; }
+
+TEST(LutExport, PfstoolsFileLinearisesRealPfshdrcalibrate) {
+  for (const char* tool : {"pfsinhdrgen", "pfshdrcalibrate", "pfsoutpfm"})
+    if (!installed(tool)) GTEST_SKIP() << tool << " not installed (Debian package pfstools)";
+  // A 3-exposure bracket (t = 1/4, 1, 4) of a log ramp rendered with the three different ψ of rgbReport();
+  // pfshdrcalibrate merges it with the exported response: HDR ∝ E in each channel, the same factor in all three.
+  test::TempDir dir;
+  const CalibrationReport report = rgbReport();
+  const ExportCurves curves = exportCurves(report);
+  LutExportOptions options;
+  options.format = LutFormat::Pfstools;
+  exportLut(report, dir / "response.m", options);
+  const int width = 512;
+  std::vector<double> irradiance(width);
+  for (int i = 0; i < width; ++i) irradiance[static_cast<size_t>(i)] = std::pow(10.0, -2.5 + 2.8 * i / (width - 1));
+  std::ofstream script(dir / "bracket.hdrgen");
+  const double times[3] = {0.25, 1.0, 4.0};
+  for (int k = 0; k < 3; ++k) {
+    cv::Mat image(8, width, CV_8UC3);
+    for (int y = 0; y < image.rows; ++y)
+      for (int x = 0; x < width; ++x)
+        for (int c = 0; c < 3; ++c)  // BGR in memory
+          image.at<cv::Vec3b>(y, x)[2 - c] = cv::saturate_cast<uchar>(
+              std::lround(255 * curves.rgb[static_cast<size_t>(c)].forward(std::min(1.0, irradiance[static_cast<size_t>(x)] * times[k]))));
+    const fs::path file = dir / ("b" + std::to_string(k) + ".ppm");
+    ASSERT_TRUE(cv::imwrite(file.string(), image));
+    script << file.string() << " " << 1 / times[k] << " 1 100 0\n";  // <file> <1/t> <N> <ISO> 0
+  }
+  script.close();
+  const auto result = test::run("cd '" + dir.path().string() + "' && pfsinhdrgen bracket.hdrgen | pfshdrcalibrate " +
+                                "--response-file response.m | pfsoutpfm hdr.pfm");
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  const cv::Mat hdr = cv::imread((dir / "hdr.pfm").string(), cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(hdr.type(), CV_32FC3);
+  std::array<std::vector<double>, 3> ratio;  // HDR / E per channel, where some exposure is well exposed
+  for (int x = 0; x < width; ++x) {
+    const double e = irradiance[static_cast<size_t>(x)];
+    if (e < 0.03 || e > 1.2) continue;  // below, even the longest exposure is < 50 codes in R (quantisation)
+    const cv::Vec3f v = hdr.at<cv::Vec3f>(4, x);
+    for (int c = 0; c < 3; ++c) ratio[static_cast<size_t>(c)].push_back(v[2 - c] / e);
+  }
+  std::array<double, 3> median{};
+  for (size_t c = 0; c < 3; ++c) {
+    auto sorted = ratio[c];
+    std::sort(sorted.begin(), sorted.end());
+    median[c] = sorted[sorted.size() / 2];
+    std::vector<double> deviation;
+    for (double r : ratio[c]) deviation.push_back(std::abs(r / median[c] - 1));
+    std::sort(deviation.begin(), deviation.end());
+    EXPECT_LT(deviation[deviation.size() * 95 / 100], 0.03) << "channel " << c;  // 8-bit quantisation dominates
+  }
+  // One factor for all channels: a swapped or wrong curve would tint the merge.
+  EXPECT_NEAR(median[0] / median[1], 1.0, 0.02);
+  EXPECT_NEAR(median[2] / median[1], 1.0, 0.02);
+}
+
+TEST(LutExport, HuginCoefficientsLineariseRealNona) {
+  if (!installed("nona")) GTEST_SKIP() << "nona not installed (Debian package hugin-tools)";
+  // A 0..255 ramp remapped by Hugin's nona in HDR mode: each output pixel is Hugin's inverse of the EMoR response
+  // given by the exported Ra..Re, i.e. φ within the EMoR-5 representation error.
+  test::TempDir dir;
+  const CalibrationReport report = rgbReport();
+  LutExportOptions options;
+  options.format = LutFormat::Hugin;
+  options.direction = LutDirection::Forward;
+  const LutExportResult exported = exportLut(report, dir / "camera.pto", options);
+  std::ifstream in(dir / "camera.pto");
+  std::string line, fragment;
+  while (std::getline(in, line))
+    if (!line.empty() && line[0] == 'R') fragment = line;
+  ASSERT_FALSE(fragment.empty());
+  cv::Mat ramp(8, 256, CV_8UC3);
+  for (int x = 0; x < 256; ++x) ramp.col(x).setTo(cv::Scalar(x, x, x));
+  ASSERT_TRUE(cv::imwrite((dir / "ramp.png").string(), ramp));
+  std::ofstream pto(dir / "project.pto");
+  pto << "p f0 w256 h8 v10 E0 R0 n\"TIFF_m c:NONE\"\nm i0\n"
+      << "i w256 h8 f0 v10 Rt0 " << fragment
+      << " Eev0 Er1 Eb1 r0 p0 y0 TrX0 TrY0 TrZ0 j0 a0 b0 c0 d0 e0 g0 t0 Va1 Vb0 Vc0 Vd0 Vx0 Vy0 Vm0 n\"ramp.png\"\n";
+  pto.close();
+  const auto result =
+      test::run("cd '" + dir.path().string() + "' && nona -r hdr -m TIFF_m -p FLOAT -o linear project.pto");
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  const cv::Mat linear = cv::imread((dir / "linear0000.tif").string(), cv::IMREAD_UNCHANGED);
+  ASSERT_FALSE(linear.empty()) << result.output;
+  ASSERT_EQ(linear.depth(), CV_32F);
+  // φ of Hugin's own curve (f0 + Σ c_k h_k, inverted) and of the true curve (G = gamma 2.2).
+  const std::vector<double> psi = emor::evaluateForward(exported.hugin_coefficients);
+  const ResponseCurve hugin_curve = ResponseCurve::fromSamples([&] {
+    std::vector<double> phi(kCurveSamples);  // invert the monotone ψ table
+    size_t j = 0;
+    for (int i = 0; i < kCurveSamples; ++i) {
+      const double x = double(i) / (kCurveSamples - 1);
+      while (j + 2 < psi.size() && psi[j + 1] < x) ++j;
+      const double t = psi[j + 1] > psi[j] ? std::clamp((x - psi[j]) / (psi[j + 1] - psi[j]), 0.0, 1.0) : 0.0;
+      phi[static_cast<size_t>(i)] = (double(j) + t) / (psi.size() - 1);
+    }
+    phi.front() = 0;
+    phi.back() = 1;
+    return phi;
+  }());
+  double to_hugin = 0, to_truth = 0;
+  for (int x = 1; x < 256; ++x) {
+    const float* v = linear.ptr<float>(4) + x * linear.channels();
+    to_hugin = std::max(to_hugin, std::abs(double(v[1]) - hugin_curve.inverse(x / 255.0)));
+    to_truth = std::max(to_truth, std::abs(double(v[1]) - std::pow(x / 255.0, 2.2)));
+  }
+  EXPECT_LT(to_hugin, 3e-3);  // nona applies exactly the curve the coefficients describe
+  EXPECT_LT(to_truth, 0.03);  // … which is φ up to the EMoR-5 error of ψ (worst near 0)
 }
 
 }  // namespace

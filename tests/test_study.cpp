@@ -149,6 +149,26 @@ TEST(StudyRatio, BracketFitRecoversPlantedRatios) {
   EXPECT_THROW(fitBracket({frames[0]}, {1.0}), InvalidInput);
 }
 
+TEST(StudyRatio, FittedExposuresPredictHeldOutFramesBetterThanWrongNominalOnes) {
+  // The middle step is 10 % off its nominal value: fitted on the left half, predicted on the right half.
+  const ResponseCurve curve(GammaModel{2.2});
+  const std::vector<double> truth{1, 2, 4.4, 8}, nominal{1, 2, 4, 8};
+  const auto frames = plantedBracket(truth, curve);
+  const cv::Rect left(0, 0, frames[0].cols / 2, frames[0].rows);
+  const cv::Rect right(frames[0].cols / 2, 0, frames[0].cols - frames[0].cols / 2, frames[0].rows);
+  BracketFitOptions fixed, free;
+  fixed.fixed_exposures = true;
+  fixed.region = free.region = left;
+  const BracketFitResult nominal_fit = fitBracket(frames, nominal, fixed), fitted = fitBracket(frames, nominal, free);
+  ASSERT_EQ(nominal_fit.step_ratio.size(), 3u);
+  EXPECT_NEAR(nominal_fit.step_ratio[1], 2.0, 1e-9);  // fixed at the nominal ratio
+  const auto e_nominal = bracketPredictionRmse(frames, nominal_fit, right);
+  const auto e_fitted = bracketPredictionRmse(frames, fitted, right);
+  ASSERT_EQ(e_fitted.size(), 4u);  // three steps + all
+  EXPECT_LT(e_fitted.back(), 0.8 * e_nominal.back());
+  EXPECT_LT(e_fitted.back(), 6.0 / 255);  // and predicts within a few levels (EMoR(4) vs the γ 2.2 truth)
+}
+
 TEST(StudyDatasets, ReadsNpyAndExifCsv) {
   test::TempDir dir;
   {

@@ -34,6 +34,10 @@ struct Problem {
   double smoothness = 0;
   Eigen::MatrixXd rough_a;     // second differences of the basis on the roughness grid
   Eigen::VectorXd rough_b;     // … of g0    // Σ w y² (keeps the cost O(1))
+  double exponent_smoothness = 0;
+  Eigen::MatrixXd exponent_a;     // φ at the exponent grid nodes: φ_j = exponent_a.row(j)·c + exponent_b[j]
+  Eigen::VectorXd exponent_b;
+  Eigen::VectorXd exponent_dlog;  // log x_{j+1} − log x_j
   Eigen::MatrixXd monotone_a;  // M × K: h_k(x_{j+1}) − h_k(x_j)
   Eigen::VectorXd monotone_b;  // g0(x_{j+1}) − g0(x_j)
 };
@@ -64,11 +68,37 @@ double cost(const Problem& p, const double* v, double* grad) {
     rough = p.smoothness * d.squaredNorm();
     if (grad) grad_c += 2 * p.smoothness * (p.rough_a.transpose() * d);
   }
+  double bend = 0;
+  if (p.exponent_smoothness > 0 && p.terms > 0) {
+    // Local exponent between nodes, g_j = Δ log φ / Δ log x (constant for φ = x^γ); penalty λ Σ (g_{j+1} − g_j)².
+    // Invariant to the unknown scale s (log sφ = log s + log φ), so it cannot be lowered by trading s against φ.
+    const Eigen::VectorXd node = p.exponent_a * c + p.exponent_b;
+    const Eigen::Index m = node.size();
+    Eigen::VectorXd phi_n = node.cwiseMax(1e-12);
+    Eigen::VectorXd g(m - 1);
+    for (Eigen::Index j = 0; j + 1 < m; ++j) g[j] = (std::log(phi_n[j + 1]) - std::log(phi_n[j])) / p.exponent_dlog[j];
+    Eigen::VectorXd dg_dlogphi = Eigen::VectorXd::Zero(m);  // ∂penalty/∂ log φ_j
+    for (Eigen::Index j = 0; j + 2 < m; ++j) {
+      const double d = g[j + 1] - g[j];
+      bend += d * d;
+      if (grad) {
+        // d = (L_{j+2} − L_{j+1})/Δ_{j+1} − (L_{j+1} − L_j)/Δ_j
+        dg_dlogphi[j + 2] += 2 * d / p.exponent_dlog[j + 1];
+        dg_dlogphi[j + 1] += 2 * d * (-1 / p.exponent_dlog[j + 1] - 1 / p.exponent_dlog[j]);
+        dg_dlogphi[j] += 2 * d / p.exponent_dlog[j];
+      }
+    }
+    bend *= p.exponent_smoothness;
+    if (grad) {
+      for (Eigen::Index j = 0; j < m; ++j)
+        if (node[j] > 1e-12) grad_c += (p.exponent_smoothness * dg_dlogphi[j] / node[j]) * p.exponent_a.row(j).transpose();
+    }
+  }
   if (grad) {
     for (int k = 0; k < p.terms; ++k) grad[k] = grad_c[k];
     for (int g = 0; g < p.groups; ++g) grad[p.terms + g] = grad_s[static_cast<size_t>(g)];
   }
-  return sum / p.normaliser + rough;
+  return sum / p.normaliser + rough + bend;
 }
 
 // Closed-form scales for a fixed φ at the observations.
@@ -116,6 +146,7 @@ void ScaledFitOptions::check() const {
   if (monotone_grid < 8) throw InvalidInput("monotone_grid must be ≥ 8");
   if (max_evaluations < 10) throw InvalidInput("max_evaluations must be ≥ 10");
   if (!(smoothness >= 0)) throw InvalidInput("smoothness must be ≥ 0");
+  if (!(exponent_smoothness >= 0)) throw InvalidInput("exponent_smoothness must be ≥ 0");
   if (!(cv_tolerance >= 0)) throw InvalidInput("cv_tolerance must be ≥ 0");
 }
 
@@ -165,6 +196,27 @@ ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observa
       };
       for (int k = 0; k < terms; ++k) p.rough_a(j - 1, k) = d2(emor::inverseBasis(k + 1));
       p.rough_b[j - 1] = d2(emor::inverseMean());
+    }
+  }
+  if (terms > 0 && options.exponent_smoothness > 0) {
+    // Nodes x_j = j/64 from the last one inside the data to 1: the penalty only decides the continuation of φ
+    // beyond the brightest exact sample (where the data cannot), and links it to the exponent the data show.
+    constexpr int kExponentGrid = 64, kFirst = 4;
+    double top = 0;
+    for (const auto& o : observations)
+      if (o.kind == ScaledObservation::Kind::Exact) top = std::max(top, o.x);
+    int first = std::max(kFirst, int(std::floor(top * kExponentGrid)) - 1);
+    first = std::min(first, kExponentGrid - 2);
+    p.exponent_smoothness = options.exponent_smoothness;
+    const int m = kExponentGrid - first + 1;
+    p.exponent_a.resize(m, terms);
+    p.exponent_b.resize(m);
+    p.exponent_dlog.resize(m - 1);
+    for (int j = 0; j < m; ++j) {
+      const double x = double(j + first) / kExponentGrid;
+      for (int k = 0; k < terms; ++k) p.exponent_a(j, k) = lerp(emor::inverseBasis(k + 1), x);
+      p.exponent_b[j] = lerp(emor::inverseMean(), x);
+      if (j + 1 < m) p.exponent_dlog[j] = std::log(double(j + first + 1) / (j + first));
     }
   }
   if (!(p.normaliser > 0)) throw InvalidInput("response fit: all weights are zero");

@@ -204,26 +204,39 @@ cv::Mat rectify(const cv::Mat& image, const ChartCorners& corners, int pitch) {
   return out;
 }
 
-std::optional<ChartCorners> detect(const cv::Mat& image) {
-  if (image.empty() || image.depth() != CV_8U || image.channels() != 3)
-    throw InvalidInput("chart detection needs an 8-bit BGR image");
-  // mcc is slow on large photos (≈ 10 s at 2448×2048); detect on a copy at most 1280 px wide and scale back.
-  const double factor = std::min(1.0, 1280.0 / std::max(image.cols, image.rows));
+namespace {
+
+// mcc on `image` scaled by `factor`; the box corners in full-resolution coordinates.
+std::optional<std::vector<cv::Point2f>> detectBox(const cv::Mat& image, double factor) {
   cv::Mat small = image;
   if (factor < 1) cv::resize(image, small, cv::Size(), factor, factor, cv::INTER_AREA);
   cv::Ptr<cv::mcc::CCheckerDetector> detector = cv::mcc::CCheckerDetector::create();
   if (!detector->process(small, cv::mcc::MCC24, 1)) return std::nullopt;
   cv::Ptr<cv::mcc::CChecker> checker = detector->getBestColorChecker();
   if (!checker) return std::nullopt;
-  const std::vector<cv::Point2f> box = checker->getBox();
+  std::vector<cv::Point2f> box = checker->getBox();
   if (box.size() != 4) return std::nullopt;
+  for (auto& p : box) p *= float(1 / factor);
+  return box;
+}
+
+}  // namespace
+
+std::optional<ChartCorners> detect(const cv::Mat& image) {
+  if (image.empty() || image.depth() != CV_8U || image.channels() != 3)
+    throw InvalidInput("chart detection needs an 8-bit BGR image");
+  // mcc is slow on large photos (≈ 10 s at 2448×2048): detect on a copy at most 1280 px wide and scale back; only
+  // when that finds nothing (a chart too small at that scale) try the full resolution.
+  const double factor = std::min(1.0, 1280.0 / std::max(image.cols, image.rows));
+  std::optional<std::vector<cv::Point2f>> box = detectBox(image, factor);
+  if (!box && factor < 1) box = detectBox(image, 1.0);
+  if (!box) return std::nullopt;
   // mcc's Classic model (opencv_contrib mcc/src/charts.cpp): box 16.75 × 11.25 units, 2.5-unit cells on a
   // 2.75 pitch starting at 0.25; box[0] is the corner at the first cell (dark skin). The patch grid as crfcal
   // defines it (pitch-sized cells centred on the patches) spans [0.125, 16.625] × [0.125, 11.125].
   const std::array<cv::Point2f, 4> model{cv::Point2f(0, 0), cv::Point2f(16.75f, 0), cv::Point2f(16.75f, 11.25f),
                                          cv::Point2f(0, 11.25f)};
-  std::array<cv::Point2f, 4> image_box{box[0], box[1], box[2], box[3]};
-  for (auto& p : image_box) p *= float(1 / factor);
+  const std::array<cv::Point2f, 4> image_box{(*box)[0], (*box)[1], (*box)[2], (*box)[3]};
   const cv::Mat h = cv::getPerspectiveTransform(model.data(), image_box.data());
   std::vector<cv::Point2f> grid{cv::Point2f(0.125f, 0.125f), cv::Point2f(16.625f, 0.125f),
                                 cv::Point2f(16.625f, 11.125f), cv::Point2f(0.125f, 11.125f)};

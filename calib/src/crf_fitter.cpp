@@ -331,11 +331,6 @@ double inverseOf(const std::vector<double>& f, double y) {
   return (v + t) / (n - 1);
 }
 
-std::vector<double> levelValues(const ResponseModel& model, int L) {
-  std::vector<double> f(L);
-  for (int v = 0; v < L; ++v) f[v] = evaluateInverse(model, double(v) / (L - 1));
-  return f;
-}
 
 // ---------------------------------------------------------------------------------------------------------
 // Moment sums: per fold (16×16 checkerboard tiles) and instrument bin, the kernel-mass histogram of I's levels
@@ -732,56 +727,6 @@ double momentEnergy(const MomentSystem& sys, const std::vector<double>& f, doubl
   return e / std::max(sys.weight, 1e-300);
 }
 
-// Bias-corrected moment energy (corrected score): the squared bin sums carry the noise variance of I's mixture,
-// r² Σ_v q(v) Var g(I); with g = R φ, g(x_v)² − (R φ²)(x_v) is an unbiased estimate of Var g(I) for a pixel
-// at level v, so E[corrected] = the noise-free moment energy.
-double correctedEnergy(const MomentSystem& sys, const Eigen::MatrixXd& R, const std::vector<double>& f, double r) {
-  const int L = sys.levels();
-  Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
-  const Eigen::VectorXd raw = r * (sys.h * fv) - sys.n * fv;
-  const Eigen::VectorXd g = R * fv;
-  const Eigen::VectorXd var = g.cwiseProduct(g) - R * fv.cwiseProduct(fv);
-  const Eigen::VectorXd vt = sys.q * var;
-  double e = 0;
-  for (int i = 0; i < static_cast<int>(raw.size()); ++i) {
-    const double slope = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
-    if (!(slope > 1e-9)) return kInf;
-    e += (raw[i] * raw[i] - r * r * vt[i]) / (slope * slope);
-  }
-  return e / std::max(sys.weight, 1e-300);
-}
-
-// Nelder–Mead on the corrected energy over (parameters, log r), from a least-squares fit.
-ModelFit refineCorrected(const Curve& curve, const MomentSystem& sys, const Eigen::MatrixXd& R, const ModelFit& start,
-                         bool fit_ratio, int max_evaluations) {
-  if (start.x.empty()) return start;
-  const int d = curve.dims();
-  auto energy = [&](const std::vector<double>& p) {
-    std::vector<double> f;
-    if (!curve.values(p.data(), f, nullptr) || !monotone(f)) return 1e6;
-    if (curve.kind() == Curve::kEmor) {
-      std::vector<double> g;
-      curve.gridValues(p.data(), g, nullptr);
-      if (!monotone(g)) return 1e6;
-    }
-    const double e = correctedEnergy(sys, R, f, fit_ratio ? std::exp(p[d]) : start.ratio);
-    return std::isfinite(e) ? e : 1e6;
-  };
-  std::vector<double> p0 = start.x;
-  if (fit_ratio) p0.push_back(std::log(start.ratio));
-  const Minimum m = nelderMead(p0, energy, max_evaluations, 0.02, 1e-10);
-  ModelFit out = start;
-  out.evaluations += m.evaluations;
-  if (m.value < 1e6) {
-    out.x.assign(m.x.begin(), m.x.begin() + d);
-    if (fit_ratio) out.ratio = std::exp(m.x[d]);
-    out.energy = m.value;
-    out.valid = isValid(curve.model(out.x));
-    if (!out.valid) out = start;
-  }
-  return out;
-}
-
 // ---------------------------------------------------------------------------------------------------------
 // Seed objective (Eq. 22): Σ W² (ψ(r · m_p) − B_p)² / Σ W², m_p = Σ w_p(v) g(x_v), g = f or R f.
 struct SeedObjective {
@@ -1076,27 +1021,14 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
       for (int k = 0; k < bins; ++k) nonempty += (moments.count[0][k] + moments.count[1][k]) > 0;
       result.moment_bins = nonempty;
     }
-    // Weights: ω_k = 1 / φ'(b_k)² (intensity-domain residuals, Eq. 21 to first order), φ' from a reference φ
-    // (γ 2.2 in the first round, the fit afterwards); common to all candidates so energies compare.
-    auto weightsFor = [&](const std::vector<double>& f) {
-      Eigen::VectorXd omega(bins);
-      for (int k = 0; k < bins; ++k) {
-        const double b = centre[k];
-        const int v = std::clamp(static_cast<int>(std::lround(b * (L - 1))), 1, L - 2);
-        const int span = std::max(1, (L - 1) / K);
-        const int v0 = std::max(0, v - span), v1 = std::min(L - 1, v + span);
-        const double slope = (f[v1] - f[v0]) / (double(v1 - v0) / (L - 1));
-        omega[k] = 1.0 + 0.0 * slope;  // the slope enters the residual itself (MomentSystem)
-      }
-      return omega;
-    };
-    std::vector<double> reference = levelValues(GammaModel{2.2}, L);
+    // Bin weights ω_k = 1: each residual is already divided by the secant slope of φ over the bin (the
+    // intensity-domain residual of Eq. 21 to first order, MomentSystem), which makes the bins comparable.
+    const Eigen::VectorXd omega = Eigen::VectorXd::Ones(bins);
     ModelFit fit_g, fit_e;
     double ratio = options.initial_ratio;
     const int lm_iterations = std::max(20, options.max_evaluations / 10);
     MomentSystem full;
-    for (int round = 0; round < 1; ++round) {
-      const Eigen::VectorXd omega = weightsFor(reference);
+    {
       full = makeSystem(moments, rt, -1, omega, K, bin_level_bin);
       if (want_emor || want_ggcm) {
         fit_e = fitModelMoments(emor_curve, full, {}, ratio, options.fit_ratio, lm_iterations);
@@ -1149,13 +1081,12 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
         result.evaluations += fit_g.evaluations;
         result.iterations += fit_g.iterations;
       }
-      // reference for the next weights: the better valid fit
+      // r of the better valid fit: the start of the CUE refinement
       const bool use_g = want_ggcm && fit_g.valid && (!fit_e.valid || fit_g.energy <= fit_e.energy || !want_emor);
-      if (use_g) reference = levelValues(ggcm_curve.model(fit_g.x), L), ratio = fit_g.ratio;
-      else if (fit_e.valid) reference = levelValues(emor_curve.model(fit_e.x), L), ratio = fit_e.ratio;
-      report(0.1 + 0.4 * (round + 1), "optimise");
+      if (use_g) ratio = fit_g.ratio;
+      else if (fit_e.valid) ratio = fit_e.ratio;
+      report(0.5, "optimise");
     }
-    const Eigen::VectorXd omega = weightsFor(reference);
     const bool corrected = options.variance_correction;
     if (corrected) {
       CueModel cue;

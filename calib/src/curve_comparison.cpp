@@ -99,6 +99,20 @@ ChannelComparison compareCurves(const std::vector<double>& a, const std::vector<
   result.rmse_covered = covered.rmse;
   result.max_error_covered = covered.max_error;
   result.samples_covered = covered.count;
+  // Least-squares factor a of φ_A ≈ a·φ_B on the same grid, then the RMSE of the difference.
+  double ab = 0, bb = 0;
+  for (int i = 0; i < n; ++i) {
+    const double x = n == 1 ? result.covered.first
+                            : result.covered.first + (result.covered.second - result.covered.first) * double(i) / double(n - 1);
+    const double va = interpolateSamples(a, x), vb = interpolateSamples(b, x);
+    if (!std::isfinite(va) || !std::isfinite(vb)) continue;
+    ab += va * vb;
+    bb += vb * vb;
+  }
+  result.scale_covered = bb > 0 ? ab / bb : 1.0;
+  std::vector<double> scaled(b);
+  for (double& v : scaled) v *= result.scale_covered;
+  result.rmse_covered_aligned = errorsOn(a, scaled, result.covered.first, result.covered.second, n).rmse;
   return result;
 }
 
@@ -144,27 +158,30 @@ CurveComparison compareChannels(const std::map<std::string, std::vector<double>>
     channel.channel = ca == cb ? ca : (a.size() == 1 ? cb : ca);
     result.worst_rmse = std::max(result.worst_rmse, channel.rmse);
     result.worst_rmse_covered = std::max(result.worst_rmse_covered, channel.rmse_covered);
+    result.worst_rmse_covered_aligned = std::max(result.worst_rmse_covered_aligned, channel.rmse_covered_aligned);
     result.channels.push_back(std::move(channel));
   }
   return result;
 }
 
-bool CurveComparison::withinTolerance(double tolerance, bool covered_only) const {
+bool CurveComparison::withinTolerance(double tolerance, Range range) const {
   for (const auto& c : channels) {
-    const double e = covered_only ? c.rmse_covered : c.rmse;
+    const double e = range == Range::Full ? c.rmse : range == Range::Covered ? c.rmse_covered : c.rmse_covered_aligned;
     if (!(e <= tolerance)) return false;  // NaN fails
   }
   return true;
 }
 
 std::string CurveComparison::summary() const {
-  std::string text = "channel  A->B   RMSE[0,1]   max[0,1]  (at x)   covered range      RMSE(cov)   max(cov)\n";
+  std::string text =
+      "channel  A->B   RMSE[0,1]   max[0,1]  (at x)   covered range      RMSE(cov)   max(cov)   RMSE(cov, A vs a*B)\n";
   char line[256];
   for (const auto& c : channels) {
-    std::snprintf(line, sizeof line, "%-7s  %s->%s  %10.3e  %10.3e  (%.3f)  [%.3f, %.3f] %-7s %10.3e  %10.3e\n",
+    std::snprintf(line, sizeof line,
+                  "%-7s  %s->%s  %10.3e  %10.3e  (%.3f)  [%.3f, %.3f] %-7s %10.3e  %10.3e  %10.3e (a = %.4f)\n",
                   c.channel.c_str(), c.channel_a.c_str(), c.channel_b.c_str(), c.rmse, c.max_error, c.argmax,
                   c.covered.first, c.covered.second, c.covered_source == "A∩B" ? "A&B" : c.covered_source.c_str(),
-                  c.rmse_covered, c.max_error_covered);
+                  c.rmse_covered, c.max_error_covered, c.rmse_covered_aligned, c.scale_covered);
     text += line;
   }
   return text;

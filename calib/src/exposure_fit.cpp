@@ -117,7 +117,9 @@ struct BracketProblem {
     }
     return phi;
   }
+  std::vector<double> fixed;  // non-empty: the log exposures are fixed at these
   std::vector<double> exposures(const double* p) const {
+    if (!fixed.empty()) return fixed;
     std::vector<double> e(static_cast<size_t>(frames), 0.0);
     for (int j = 1; j < frames - 1; ++j) e[static_cast<size_t>(j)] = p[terms + j - 1];
     e[static_cast<size_t>(frames - 1)] = span;
@@ -168,8 +170,11 @@ BracketFitResult fitBracket(const std::vector<cv::Mat>& frames_in, const std::ve
   problem.terms = options.terms;
   problem.frames = static_cast<int>(frames.size());
   problem.span = std::log(nominal.back() / nominal.front());
+  const cv::Rect area = options.region.area() > 0 ? options.region & cv::Rect(0, 0, frames[0].cols, frames[0].rows)
+                                                  : cv::Rect(0, 0, frames[0].cols, frames[0].rows);
+  if (area.area() == 0) throw InvalidInput("bracket fit: the region lies outside the frames");
   std::mt19937_64 rng(options.seed);
-  std::uniform_int_distribution<int> ry(0, frames[0].rows - 1), rx(0, frames[0].cols - 1);
+  std::uniform_int_distribution<int> ry(area.y, area.y + area.height - 1), rx(area.x, area.x + area.width - 1);
   for (int s = 0; s < options.samples; ++s) {
     const int y = ry(rng), x = rx(rng);
     for (int j = 0; j + 1 < problem.frames; ++j) {
@@ -180,13 +185,15 @@ BracketFitResult fitBracket(const std::vector<cv::Mat>& frames_in, const std::ve
     }
   }
   if (problem.obs.size() < 50) throw InvalidInput("bracket fit: too few pixels well exposed in consecutive frames");
-  const int n = options.terms + problem.frames - 2;
+  if (options.fixed_exposures)
+    for (double v : nominal) problem.fixed.push_back(std::log(v / nominal.front()));
+  const int n = options.terms + (options.fixed_exposures ? 0 : problem.frames - 2);
   std::vector<double> p(static_cast<size_t>(n), 0.0), lower(static_cast<size_t>(n)), upper(static_cast<size_t>(n));
   for (int k = 0; k < options.terms; ++k) {
     lower[static_cast<size_t>(k)] = -5;
     upper[static_cast<size_t>(k)] = 5;
   }
-  for (int j = 1; j < problem.frames - 1; ++j) {
+  for (int j = 1; j < problem.frames - 1 && !options.fixed_exposures; ++j) {
     const size_t i = static_cast<size_t>(options.terms + j - 1);
     p[i] = std::log(nominal[static_cast<size_t>(j)] / nominal.front());
     lower[i] = p[i] - 1.0;
@@ -215,6 +222,43 @@ BracketFitResult fitBracket(const std::vector<cv::Mat>& frames_in, const std::ve
   problem.cost(p.data(), &result.rms_residual);
   result.pairs_used = static_cast<int>(problem.obs.size());
   return result;
+}
+
+std::vector<double> bracketPredictionRmse(const std::vector<cv::Mat>& frames_in, const BracketFitResult& fit,
+                                          const cv::Rect& region, double low, double high) {
+  if (frames_in.size() < 2 || fit.step_ratio.size() + 1 != frames_in.size())
+    throw InvalidInput("bracket prediction: one step ratio per consecutive pair of frames needed");
+  std::vector<cv::Mat> frames;
+  for (const auto& f : frames_in) frames.push_back(toUnitGray(f));
+  const cv::Rect area = region.area() > 0 ? region & cv::Rect(0, 0, frames[0].cols, frames[0].rows)
+                                          : cv::Rect(0, 0, frames[0].cols, frames[0].rows);
+  const ResponseCurve curve = ResponseCurve::fromSamples([&] {
+    std::vector<double> phi = fit.inverse_crf;
+    phi.front() = 0;
+    phi.back() = 1;
+    for (size_t i = 1; i < phi.size(); ++i) phi[i] = std::clamp(phi[i], phi[i - 1], 1.0);
+    return phi;
+  }());
+  std::vector<double> out;
+  double total = 0;
+  long count_all = 0;
+  for (size_t j = 0; j + 1 < frames.size(); ++j) {
+    double sum = 0;
+    long count = 0;
+    for (int y = area.y; y < area.y + area.height; ++y)
+      for (int x = area.x; x < area.x + area.width; ++x) {
+        const double z1 = frames[j].at<double>(y, x), z2 = frames[j + 1].at<double>(y, x);
+        if (z1 < low || z1 > high || z2 < low || z2 > high) continue;
+        const double predicted = curve.forward(std::min(1.0, fit.step_ratio[j] * curve.inverse(z1)));
+        sum += (predicted - z2) * (predicted - z2);
+        ++count;
+      }
+    out.push_back(count > 0 ? std::sqrt(sum / count) : 0.0);
+    total += sum;
+    count_all += count;
+  }
+  out.push_back(count_all > 0 ? std::sqrt(total / count_all) : 0.0);
+  return out;
 }
 
 }  // namespace crfcal

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <map>
 
 #include <opencv2/imgproc.hpp>
 
@@ -69,6 +70,17 @@ cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::M
   return out;
 }
 
+cv::Point2d kernelCentroid(const cv::Mat& K) {
+  cv::Point2d c;
+  const double total = cv::sum(K)[0];
+  for (int y = 0; y < K.rows; ++y)
+    for (int x = 0; x < K.cols; ++x) {
+      c.x += K.at<double>(y, x) * (x - K.cols / 2);
+      c.y += K.at<double>(y, x) * (y - K.rows / 2);
+    }
+  return total > 0 ? c / total : c;
+}
+
 cv::Mat dilateBy(const cv::Mat& mask, int n) {
   cv::Mat out;
   cv::dilate(mask, out, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(n, n)));
@@ -88,6 +100,9 @@ cv::Mat denoiseForKernel(const cv::Mat& image) {
   return out;
 }
 
+PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blurred, const PairCalibrationOptions& options,
+                                       PairCalibrationResult result, bool registered, Clock::time_point t0);
+
 }  // namespace
 
 void PairCalibrationOptions::check() const {
@@ -98,6 +113,8 @@ void PairCalibrationOptions::check() const {
   if (rounds < 0 || rounds > 10) throw InvalidInput("rounds must be in 0..10");
   if (!(saturated_frame_limit > 0 && saturated_frame_limit <= 1)) throw InvalidInput("saturated_frame_limit in (0,1]");
   if (max_fit_side < 128) throw InvalidInput("max_fit_side must be >= 128");
+  if (!(min_blur_radius >= 0)) throw InvalidInput("min_blur_radius must be >= 0");
+  if (!(min_covered_span >= 0 && min_covered_span <= 1)) throw InvalidInput("min_covered_span must be in [0, 1]");
   effects.check();
 }
 
@@ -115,46 +132,164 @@ std::string PairCalibrationResult::summary() const {
   return text;
 }
 
-PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred, const PairCalibrationOptions& options) {
+PairCalibrationResult calibratePair(const cv::Mat& sharp_in, const cv::Mat& blurred, const PairCalibrationOptions& options) {
   options.check();
   auto report = [&](const std::string& stage, double fraction, const std::string& detail = {}) {
     if (options.progress) options.progress(stage, fraction, detail);
   };
-  if (sharp.empty() || blurred.empty()) throw InvalidInput("empty image");
-  if (sharp.size() != blurred.size())
+  if (sharp_in.empty() || blurred.empty()) throw InvalidInput("empty image");
+  const bool transposed = sharp_in.size() != blurred.size() && sharp_in.size() == cv::Size(blurred.rows, blurred.cols);
+  if (transposed && !options.register_pair)
+    throw InvalidInput("the images differ in orientation (portrait vs landscape): registration is needed");
+  const cv::Mat& sharp = sharp_in;  // replaced by its rotated copy below when the frames are transposed
+  if (sharp.size() != blurred.size() && !transposed)
     throw InvalidInput("the images differ in size (" + std::to_string(sharp.cols) + "x" + std::to_string(sharp.rows) +
                        " vs " + std::to_string(blurred.cols) + "x" + std::to_string(blurred.rows) + ")");
   if (sharp.type() != blurred.type()) throw InvalidInput("the images differ in bit depth or channel count");
   if (sharp.depth() != CV_8U && sharp.depth() != CV_16U) throw InvalidInput("8- or 16-bit images expected");
   PairCalibrationResult result;
+  auto t0 = Clock::now();
+  cv::Mat rotated;
+  if (transposed) {
+    // One shot held in portrait, the other in landscape (EXIF orientation not recorded): the sharp shot is turned
+    // by ±90° (a lossless pixel permutation, no resampling of the noisy image) — whichever registers.
+    report("register", 0, "frames transposed: trying the sharp shot turned by +90 and -90 degrees");
+    double best = -1;
+    std::string failures;
+    for (const int code : {cv::ROTATE_90_CLOCKWISE, cv::ROTATE_90_COUNTERCLOCKWISE}) {
+      cv::Mat candidate;
+      cv::rotate(sharp_in, candidate, code);
+      try {
+        const RegistrationResult r = registerPair(candidate, blurred, options.registration);
+        // The features are rotation invariant, so the wrong turn may still register as a ~180° rotation: a
+        // handheld pair differs by a small angle, and that is the turn to keep.
+        if (std::abs(r.rotationDegrees()) > 45) continue;
+        if (r.ecc_correlation * r.overlap_fraction > best) {
+          best = r.ecc_correlation * r.overlap_fraction;
+          rotated = candidate;
+          result.registration = r;
+          result.sharp_rotation_deg = code == cv::ROTATE_90_CLOCKWISE ? -90 : 90;
+        }
+      } catch (const InvalidInput& e) {
+        failures = e.what();
+      }
+    }
+    if (rotated.empty())
+      throw InvalidInput("the images differ in orientation and neither 90-degree turn aligns them: " + failures);
+    result.warnings.push_back("the sharp shot is framed in the other orientation; it was turned by " +
+                              std::to_string(static_cast<int>(result.sharp_rotation_deg)) +
+                              " degrees (outputs are in the blurred shot's orientation)");
+  }
+  return calibrateAligned(transposed ? rotated : sharp, blurred, options, std::move(result), transposed, t0);
+}
+
+namespace {
+
+// The kernel's working set: the edge-rich tiles (each grown by the kernel's reach) side by side in one small
+// mosaic, so that denoising, tone matching and the φ transforms of every round touch a few megapixels, not the
+// whole 24 MP frame. A one-pixel unusable gutter separates the crops (no equation straddles two of them). Small
+// frames (one region) use the frame itself.
+struct Canvas {
+  cv::Mat sharp, sharp_denoised, blurred, usable;  // CV_64F in [0,1] (usable CV_8U)
+  std::vector<cv::Rect> regions;                   // the tiles in canvas coordinates
+};
+
+Canvas makeCanvas(const cv::Mat& sharp8, const cv::Mat& blurred8, const cv::Mat& usable, const std::vector<Tile>& tiles,
+                  int margin) {
+  Canvas c;
+  const cv::Rect frame(0, 0, sharp8.cols, sharp8.rows);
+  std::vector<cv::Rect> crops;
+  for (const auto& t : tiles)
+    crops.push_back(cv::Rect(t.rect.x - margin, t.rect.y - margin, t.rect.width + 2 * margin, t.rect.height + 2 * margin) &
+                    frame);
+  int width = 0, height = 0;
+  for (const auto& r : crops) {
+    width += r.width + 1;
+    height = std::max(height, r.height);
+  }
+  if (crops.size() == 1 && crops[0] == frame) {
+    c.sharp = unit(sharp8);
+    c.blurred = unit(blurred8);
+    c.usable = usable.clone();
+    c.regions = {tiles[0].rect};
+  } else {
+    c.sharp = cv::Mat::zeros(height, width, CV_64F);
+    c.blurred = cv::Mat::zeros(height, width, CV_64F);
+    c.usable = cv::Mat::zeros(height, width, CV_8U);
+    int x = 0;
+    for (std::size_t i = 0; i < crops.size(); ++i) {
+      const cv::Rect& r = crops[i];
+      const cv::Rect at(x, 0, r.width, r.height);
+      unit(sharp8(r)).copyTo(c.sharp(at));
+      unit(blurred8(r)).copyTo(c.blurred(at));
+      usable(r).copyTo(c.usable(at));
+      c.regions.push_back(tiles[i].rect - r.tl() + at.tl());
+      x += r.width + 1;
+    }
+  }
+  c.sharp_denoised = denoiseForKernel(c.sharp);
+  return c;
+}
+
+// The rest of calibratePair once both frames have the same orientation (registration done when `registered`).
+PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blurred, const PairCalibrationOptions& options,
+                                       PairCalibrationResult result, bool registered, Clock::time_point t0) {
+  auto report = [&](const std::string& stage, double fraction, const std::string& detail = {}) {
+    if (options.progress) options.progress(stage, fraction, detail);
+  };
   const bool colour = sharp.channels() == 3;
   result.channels = colour && options.rgb ? std::vector<std::string>{"R", "G", "B"} : std::vector<std::string>{"G"};
   const double top = fullScale(sharp);
+  const std::vector<cv::Mat> sharp_planes = splitChannels(sharp), blurred_planes_own = splitChannels(blurred);
+  auto plane = [&](const std::vector<cv::Mat>& planes, const std::string& name) {
+    if (planes.size() == 1) return planes[0];
+    return planes[name == "B" ? 0 : name == "G" ? 1 : 2];
+  };
+  // Full-frame work stays in the images' own 8/16-bit depth (masks, tiles, warps); only the kernel's tiles and
+  // the fit window are converted to floating point.
+  const cv::Mat sharp_g8 = plane(sharp_planes, "G");
+  const double clip_high = options.fit.saturation_high * top, clip_low = options.fit.saturation_low * top;
 
   // Saturated frames.
-  {
-    auto clippedFraction = [&](const cv::Mat& image) {
-      cv::Mat gray = image.channels() == 3 ? splitChannels(image)[1] : image;
-      return cv::countNonZero(gray >= options.fit.saturation_high * top) / static_cast<double>(gray.total());
-    };
-    for (const auto& [name, image] : {std::pair<const char*, const cv::Mat&>{"blurred", blurred}, {"sharp", sharp}}) {
-      const double f = clippedFraction(image);
-      if (f > options.saturated_frame_limit) {
-        char buffer[200];
-        std::snprintf(buffer, sizeof buffer, "saturated frame: %.0f%% of the %s image is clipped (over-exposed)",
-                      100 * f, name);
-        throw InvalidInput(buffer);
-      }
+  const cv::Mat blurred_own_g8 = plane(blurred_planes_own, "G");
+  for (const auto& [name, image] : {std::pair<const char*, const cv::Mat&>{"blurred", blurred_own_g8}, {"sharp", sharp_g8}}) {
+    const double f = cv::countNonZero(image >= clip_high) / static_cast<double>(image.total());
+    if (f > options.saturated_frame_limit) {
+      char buffer[200];
+      std::snprintf(buffer, sizeof buffer, "saturated frame: %.0f%% of the %s image is clipped (over-exposed)", 100 * f,
+                    name);
+      throw InvalidInput(buffer);
     }
   }
 
-  // Registration.
-  auto t0 = Clock::now();
+  // No edges at all (a flat frame): say so before the registration would call it a non-overlapping pair. An edge
+  // pixel: a step between neighbours (on a noise-smoothed ≤ 1024 px copy) of more than 5 % of the image's own
+  // range (1st–99th percentile; a dark, underexposed frame still has edges) and more than 1.5 levels of 8 bits.
+  {
+    cv::Mat small = unit(sharp_g8);
+    const double s = std::min(1.0, 1024.0 / std::max(small.cols, small.rows));
+    if (s < 1) cv::resize(small, small, cv::Size(), s, s, cv::INTER_AREA);
+    cv::GaussianBlur(small, small, cv::Size(3, 3), 0);
+    std::vector<double> values(small.begin<double>(), small.end<double>());
+    std::sort(values.begin(), values.end());
+    const double range = values[values.size() * 99 / 100] - values[values.size() / 100];
+    cv::Mat gx, gy, magnitude;
+    cv::Sobel(small, gx, CV_64F, 1, 0, 3, 1.0 / 8);
+    cv::Sobel(small, gy, CV_64F, 0, 1, 3, 1.0 / 8);
+    cv::magnitude(gx, gy, magnitude);
+    const double step = std::max(0.05 * range, 1.5 / 255.0);
+    if (cv::countNonZero(magnitude > step) < 0.001 * magnitude.total())
+      throw InvalidInput("no edges: the sharp image is nearly uniform (nothing to measure the blur or the response on)");
+  }
+
+  // Registration. Everything downstream works in the SHARP frame: the smooth blurred shot is resampled, the
+  // noisy sharp shot is left untouched (see warpToSharp).
   report("register", 0);
-  cv::Mat registered = sharp;
-  if (options.register_pair) {
+  if (registered) {
+    // registered while finding the orientation
+  } else if (options.register_pair) {
+    t0 = Clock::now();
     result.registration = registerPair(sharp, blurred, options.registration);
-    registered = warpToBlurred(sharp, result.registration.homography, blurred.size());
   } else {
     result.registration.method = "none (given as aligned)";
     result.registration.overlap_fraction = 1;
@@ -163,42 +298,44 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   result.timings["register"] = since(t0);
   report("register", 1, result.registration.summary());
 
-  // Working channels (G for the kernel).
-  const std::vector<cv::Mat> sharp_planes = splitChannels(registered), blurred_planes = splitChannels(blurred);
-  auto plane = [&](const std::vector<cv::Mat>& planes, const std::string& name) {
-    if (planes.size() == 1) return planes[0];
-    return planes[name == "B" ? 0 : name == "G" ? 1 : 2];
-  };
-  const cv::Mat sharp_g = unit(plane(sharp_planes, "G")), blurred_g = unit(plane(blurred_planes, "G"));
-  const int n = options.given_kernel.empty() ? options.kernel.kernel_size : std::max(options.given_kernel.rows, options.given_kernel.cols);
-  const cv::Mat overlap = overlapMask(sharp.size(), result.registration.homography, blurred.size(), n / 2 + 2);
-  if (cv::countNonZero(overlap) < 0.2 * overlap.total())
-    throw InvalidInput("the pair does not overlap enough after registration");
-  auto unsaturated = [&](const cv::Mat& s, const cv::Mat& b) {
-    cv::Mat bad = (b >= options.fit.saturation_high) | (b <= options.fit.saturation_low) |
-                  (s >= options.fit.saturation_high) | (s <= options.fit.saturation_low);
-    cv::Mat ok;
-    cv::bitwise_and(overlap, ~dilateBy(bad, n), ok);
-    return ok;
-  };
+  // I's clipped regions, by its local median (a per-pixel test would select pixels by their noise).
+  const cv::Mat sharp_clipped = [&] {
+    cv::Mat med;
+    cv::medianBlur(sharp_g8, med, 3);
+    return cv::Mat((med >= clip_high) | (med <= clip_low));
+  }();
 
-  // Tiles.
+  // Everything that depends on the alignment (re-done after the kernel-aware refinement).
+  cv::Mat overlap, blurred_g8, usable;
+  Canvas canvas;
+  auto align = [&]() {
+    const cv::Mat& H = result.registration.homography;
+    blurred_g8 = options.register_pair ? warpToSharp(blurred_own_g8, H, sharp.size()) : blurred_own_g8;
+    overlap = overlapMaskInSharp(sharp.size(), H, blurred.size(), options.register_pair ? 2 : 0);
+    if (cv::countNonZero(overlap) < 0.2 * overlap.total())
+      throw InvalidInput("the pair does not overlap enough after registration");
+    // Pixels usable for the kernel: inside the overlap and unclipped in both shots. The estimator itself keeps
+    // only equations whose whole window is usable.
+    const cv::Mat bad = (blurred_g8 >= clip_high) | (blurred_g8 <= clip_low) | sharp_clipped;
+    cv::bitwise_and(overlap, ~dilateBy(bad, 3), usable);
+    result.tiles = selectTiles(sharp_g8, usable, options.tiles);
+    canvas = makeCanvas(sharp_g8, blurred_g8, usable, result.tiles, options.kernel.kernel_size + 2);
+  };
+  align();
+
   t0 = Clock::now();
-  result.tiles = selectTiles(sharp_g, overlap, options.tiles);
-  std::vector<cv::Rect> rects;
-  for (const auto& t : result.tiles) rects.push_back(t.rect);
-
-  auto estimate = [&](const cv::Mat& s, const cv::Mat& b, const cv::Mat& valid, bool per_tile) {
+  const double register_before_kernel = result.timings["register"];
+  auto estimate = [&](const cv::Mat& s, const cv::Mat& b, bool per_tile) {
     KernelEstimationOptions ko = options.kernel;
     ko.progress = [&](double f, const std::string& stage) { report("kernel", f, stage); };
-    KernelEstimate k = estimateKernel(s, b, rects, valid, ko);
-    if (per_tile && rects.size() > 1) {
+    KernelEstimate k = estimateKernel(s, b, canvas.regions, canvas.usable, ko);
+    if (per_tile && canvas.regions.size() > 1) {
       result.tile_kernels.clear();
       KernelEstimationOptions to = options.kernel;
       to.throw_on_size_limit = false;
-      for (const auto& r : rects) {
+      for (const auto& r : canvas.regions) {
         try {
-          result.tile_kernels.push_back(estimateKernel(s, b, {r}, valid, to).kernel);
+          result.tile_kernels.push_back(estimateKernel(s, b, {r}, canvas.usable, to).kernel);
         } catch (const InvalidInput&) {
           // a tile without usable edges: no per-tile kernel
         }
@@ -207,36 +344,79 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
     }
     return k;
   };
+  // Kernel-aware refinement of the alignment: ECC of I ⊗ K against B (equally blurred), then re-align.
+  auto refine = [&](const cv::Mat& kernel) {
+    if (!options.register_pair || !options.refine_registration) return;
+    const auto tr = Clock::now();
+    cv::Mat sharp_ok;
+    cv::bitwise_and(~sharp_clipped, overlap, sharp_ok);
+    const RegistrationResult refined = refineRegistration(sharp_g8, blurred_own_g8, result.registration,
+                                                          kernel, sharp_ok, options.registration);
+    if (refined.kernel_refined) {
+      result.registration = refined;
+      align();
+    }
+    result.timings["register"] += since(tr);
+    report("register", 1, result.registration.summary());
+  };
 
   cv::Mat K;
   if (!options.given_kernel.empty()) {
     K = normalizeKernel(options.given_kernel);
     result.kernel.kernel = K;
     result.kernel_estimated = false;
+    refine(K);  // a given kernel cannot absorb a residual shift: the alignment must be right
   } else {
     report("kernel", 0);
-    const cv::Mat matched = histogramMatch(denoiseForKernel(sharp_g), blurred_g, overlap);
-    result.kernel = estimate(matched, blurred_g, unsaturated(sharp_g, blurred_g), true);
+    // Round 0: no φ yet. The sharp image's levels are mapped to the blurred one's by histogram matching (a monotone
+    // map that removes most of the exposure and tone difference), so B ≈ g · (I' ⊗ K) holds approximately.
+    auto intensityKernel = [&](bool per_tile) {
+      return estimate(histogramMatch(canvas.sharp_denoised, canvas.blurred, canvas.usable), canvas.blurred, per_tile);
+    };
+    result.kernel = intensityKernel(false);
     K = result.kernel.kernel;
+    if (options.register_pair && options.refine_registration) {
+      refine(K);
+      result.kernel = intensityKernel(options.rounds == 0);
+      K = result.kernel.kernel;
+    }
   }
-  result.timings["kernel"] = since(t0);
+  result.timings["kernel"] = since(t0) - (result.timings["register"] - register_before_kernel);
 
   // The fit window: the whole frame for moderate sizes, else a window around the best tile.
-  cv::Rect window(0, 0, blurred.cols, blurred.rows);
-  if (std::max(blurred.cols, blurred.rows) > options.max_fit_side) {
+  cv::Rect window(0, 0, sharp.cols, sharp.rows);
+  if (std::max(sharp.cols, sharp.rows) > options.max_fit_side) {
     const cv::Point centre = (result.tiles.front().rect.tl() + result.tiles.front().rect.br()) / 2;
-    const int w = std::min(options.max_fit_side, blurred.cols), h = std::min(options.max_fit_side, blurred.rows);
-    window = cv::Rect(std::clamp(centre.x - w / 2, 0, blurred.cols - w), std::clamp(centre.y - h / 2, 0, blurred.rows - h), w, h);
+    const int w = std::min(options.max_fit_side, sharp.cols), h = std::min(options.max_fit_side, sharp.rows);
+    window = cv::Rect(std::clamp(centre.x - w / 2, 0, sharp.cols - w), std::clamp(centre.y - h / 2, 0, sharp.rows - h), w, h);
   }
   result.fit_window = window;
-  cv::Mat outside = ~overlapMask(sharp.size(), result.registration.homography, blurred.size(), 0);
+  // Both shots inside the window, every channel (the blurred one resampled into the sharp frame: the window's
+  // origin composed into the homography). No data outside the overlap: 0, i.e. censored for the fitter.
+  std::map<std::string, cv::Mat> window_sharp, window_blurred;
+  {
+    const cv::Mat T = (cv::Mat_<double>(3, 3) << 1, 0, window.x, 0, 1, window.y, 0, 0, 1);
+    const cv::Mat blurred_window =
+        options.register_pair ? warpToSharp(blurred, result.registration.homography * T, window.size()) : blurred(window);
+    const std::vector<cv::Mat> planes = splitChannels(blurred_window);
+    const cv::Mat outside = ~overlap(window);
+    for (const auto& name : result.channels) {
+      cv::Mat s = plane(sharp_planes, name)(window).clone(), b = plane(planes, name).clone();
+      s.setTo(0, outside);
+      b.setTo(0, outside);
+      window_sharp[name] = s;
+      window_blurred[name] = b;
+    }
+  }
 
-  auto fitChannel = [&](const std::string& name, const cv::Mat& kernel) {
-    cv::Mat s = plane(sharp_planes, name)(window).clone(), b = plane(blurred_planes, name)(window);
-    s.setTo(0, outside(window));  // no data: censored (excluded with the kernel's support by the fitter)
+  auto fitChannel = [&](const std::string& name, const cv::Mat& kernel_full) {
+    // The smallest centred window holding the kernel's mass: the fitter dilates clipped regions and the frame
+    // border by the kernel's window, so empty margins (the estimation window's, or a given file's) would only
+    // cost pixels.
+    const cv::Mat kernel = cropKernel(kernel_full, 0.0);
     CrfFitOptions fo = options.fit;
     fo.progress = [&](double f, const std::string& stage) { report("fit " + name, f, stage); };
-    return fitInverseCrf(s, b, kernel, fo);
+    return fitInverseCrf(window_sharp.at(name), window_blurred.at(name), kernel, fo);
   };
 
   t0 = Clock::now();
@@ -249,10 +429,12 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   result.rounds.push_back({0, 0, 0, result.fits["G"].ratio, result.kernel.relative_residual});
   for (int round = 1; round <= options.rounds && options.given_kernel.empty(); ++round) {
     const ResponseCurve curve = ResponseCurve::fromSamples(result.fits["G"].inverse_crf);
-    const cv::Mat i_irr = denoiseForKernel(curve.inverse(sharp_g)), b_irr = curve.inverse(blurred_g);
+    // Irradiance domain (Eq. 4 is linear there): φ of the denoised I (denoising first avoids Jensen's bias of φ
+    // applied to noise) against φ(B).
+    const cv::Mat i_irr = curve.inverse(canvas.sharp_denoised), b_irr = curve.inverse(canvas.blurred);
     KernelEstimate k;
     try {
-      k = estimate(i_irr, b_irr, unsaturated(sharp_g, blurred_g), round == options.rounds);
+      k = estimate(i_irr, b_irr, round == options.rounds);
     } catch (const InvalidInput& e) {
       result.warnings.push_back(std::string("irradiance-domain kernel round ") + std::to_string(round) +
                                 " failed (" + e.what() + "); kept the previous kernel");
@@ -283,18 +465,14 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
     report("effects", 0);
     EffectInputs ei;
     ei.channels = result.channels;
-    for (const auto& name : result.channels) {
-      cv::Mat s = plane(sharp_planes, name)(window).clone();
-      s.setTo(0, outside(window));
-      ei.sharp[name] = s;
-      ei.blurred[name] = plane(blurred_planes, name)(window);
-    }
+    ei.sharp = window_sharp;
+    ei.blurred = window_blurred;
     ei.fits = result.fits;
     ei.kernel = K;
     ei.kernel_estimated = result.kernel_estimated;
     ei.exif_ratio = options.fit.initial_ratio;
-    ei.centre = cv::Point2d((blurred.cols - 1) / 2.0 - window.x, (blurred.rows - 1) / 2.0 - window.y);
-    ei.corner_radius = 0.5 * std::hypot(blurred.cols, blurred.rows);
+    ei.centre = cv::Point2d((sharp.cols - 1) / 2.0 - window.x, (sharp.rows - 1) / 2.0 - window.y);
+    ei.corner_radius = 0.5 * std::hypot(sharp.cols, sharp.rows);
     ei.valid = overlap(window);
     ei.fit = options.fit;
     ei.kernel_options = options.kernel;
@@ -302,7 +480,15 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
       result.effects = diagnoseEffects(ei, options.effects);
       if (!result.effects.fits.empty()) {
         result.base_fits = result.fits;
-        for (const auto& [name, fit] : result.effects.fits) result.fits[name] = fit;
+        for (const auto& [name, fit] : result.effects.fits) {
+          // A fixed r (--fix-ratio) is the user's constraint: an extended model that moved it is not adopted.
+          if (!options.fit.fit_ratio && std::abs(fit.ratio - options.fit.initial_ratio) > 1e-9 * options.fit.initial_ratio) {
+            result.warnings.push_back("channel " + name + ": the effects' refit changed the fixed r (" +
+                                      std::to_string(fit.ratio) + "); kept the fit with the fixed r");
+            continue;
+          }
+          result.fits[name] = fit;
+        }
       }
     } catch (const InvalidInput& e) {
       result.warnings.push_back(std::string("effect diagnostics skipped: ") + e.what());
@@ -312,16 +498,88 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   }
 
   // Diagnostics on G.
-  const cv::Mat sg = sharp_g(window), bg = blurred_g(window);
-  result.gamma_map = blurInconsistency(bg, convolve(sg, K));
+  result.gamma_map = blurInconsistency(unit(window_blurred.at("G")), convolve(unit(window_sharp.at("G")), K));
+  {
+    cv::Mat inside;  // Γ only where both shots have data under the whole kernel
+    cv::erode(overlap(window), inside, cv::getStructuringElement(cv::MORPH_RECT, K.size()), cv::Point(-1, -1), 1,
+              cv::BORDER_CONSTANT, cv::Scalar(0));
+    result.gamma_map.setTo(0, ~inside);
+  }
   result.weights = result.fits["G"].pixels.used_mask;
+  {
+    // Blur extent (RMS radius of the kernel about its centroid): with almost no blur the pair is a plain
+    // two-exposure pair, for which φ^γ with r^γ fits as well as φ with r (the exponential ambiguity); only the blur
+    // inconsistency (Sec. 3) separates them.
+    double m2 = 0;
+    const cv::Point2d c = kernelCentroid(K);
+    for (int y = 0; y < K.rows; ++y)
+      for (int x = 0; x < K.cols; ++x)
+        m2 += K.at<double>(y, x) * (std::pow(x - K.cols / 2 - c.x, 2) + std::pow(y - K.rows / 2 - c.y, 2));
+    result.blur_radius = std::sqrt(m2);
+    if (result.blur_radius < options.min_blur_radius && options.fit.fit_ratio) {
+      char buffer[300];
+      std::snprintf(buffer, sizeof buffer,
+                    "the blur is small (kernel RMS radius %.2f px): phi and r are nearly ambiguous (phi^g with r^g fit "
+                    "alike); the fitted r (%.3g) is weakly determined - consider fixing r to the EXIF value "
+                    "(--fix-ratio)",
+                    result.blur_radius, result.fits.at("G").ratio);
+      result.warnings.push_back(buffer);
+    }
+  }
   if (result.kernel_estimated && result.tile_kernels.size() > 1 && result.disagreement.mean_relative > 0.6)
     result.warnings.push_back("the tiles' kernels disagree (" + result.disagreement.summary() +
                               "): the blur varies across the frame; one global kernel is an approximation");
-  for (const auto& [name, fit] : result.fits)
+  for (const auto& [name, fit] : result.fits) {
     if (fit.pixels.used < 2000)
       result.warnings.push_back("channel " + name + ": only " + std::to_string(fit.pixels.used) + " edge pixels used");
+    // The intensities the data actually constrain: those of B and I at the used pixels (0.5 % tails dropped);
+    // outside, φ is the model's extrapolation.
+    const cv::Mat& used = fit.pixels.used_mask;
+    if (used.empty() || used.size() != window.size() || cv::countNonZero(used) == 0) continue;
+    std::vector<float> values;
+    for (const cv::Mat* image : {&window_sharp.at(name), &window_blurred.at(name)}) {
+      const cv::Mat u = unit(*image);
+      for (int y = 0; y < u.rows; ++y)
+        for (int x = 0; x < u.cols; ++x)
+          if (used.at<uchar>(y, x)) values.push_back(static_cast<float>(u.at<double>(y, x)));
+    }
+    auto quantile = [&](double q) {
+      auto it = values.begin() + static_cast<std::ptrdiff_t>(q * (values.size() - 1));
+      std::nth_element(values.begin(), it, values.end());
+      return static_cast<double>(*it);
+    };
+    const std::pair<double, double> range{quantile(0.005), quantile(0.995)};
+    {
+      // The sharp shot alone: an underexposed I carries few levels, each stretched over a wide range of B.
+      std::vector<float> sharp_values;
+      const cv::Mat u = unit(window_sharp.at(name));
+      for (int y = 0; y < u.rows; ++y)
+        for (int x = 0; x < u.cols; ++x)
+          if (used.at<uchar>(y, x)) sharp_values.push_back(static_cast<float>(u.at<double>(y, x)));
+      auto it = sharp_values.begin() + static_cast<std::ptrdiff_t>(0.995 * (sharp_values.size() - 1));
+      std::nth_element(sharp_values.begin(), it, sharp_values.end());
+      const double top_level = *it * (window_sharp.at(name).depth() == CV_16U ? 65535.0 : 255.0);
+      if (top_level < 64) {
+        char buffer[300];
+        std::snprintf(buffer, sizeof buffer,
+                      "channel %s: the sharp shot is underexposed (99.5 %% of its used pixels below level %.0f of %s): "
+                      "few distinct levels constrain phi",
+                      name.c_str(), top_level, window_sharp.at(name).depth() == CV_16U ? "65535" : "255");
+        result.warnings.push_back(buffer);
+      }
+    }
+    result.covered_range[name] = range;
+    if (range.second - range.first < options.min_covered_span) {
+      char buffer[300];
+      std::snprintf(buffer, sizeof buffer,
+                    "channel %s: the data cover intensities %.2f-%.2f only; phi outside that range is extrapolated",
+                    name.c_str(), range.first, range.second);
+      result.warnings.push_back(buffer);
+    }
+  }
   return result;
 }
+
+}  // namespace
 
 }  // namespace crfcal

@@ -10,7 +10,9 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/kernel.hpp"
 
 namespace crfcal {
 namespace {
@@ -47,10 +49,63 @@ double coverage(cv::Size sharp, const cv::Mat& H, cv::Size blurred) {
   return static_cast<double>(cv::countNonZero(mask)) / (static_cast<double>(blurred.area()));
 }
 
+int eccMotion(RegistrationMotion m) {
+  switch (m) {
+    case RegistrationMotion::euclidean: return cv::MOTION_EUCLIDEAN;
+    case RegistrationMotion::affine: return cv::MOTION_AFFINE;
+    case RegistrationMotion::homography: return cv::MOTION_HOMOGRAPHY;
+  }
+  return cv::MOTION_EUCLIDEAN;
+}
+
+// A 3×3 matrix → the ECC warp of `motion` (2×3 or 3×3, CV_32F); Euclidean: the rotation part re-orthonormalised.
+cv::Mat toEccWarp(const cv::Mat& W, int motion) {
+  cv::Mat out;
+  if (motion == cv::MOTION_HOMOGRAPHY) {
+    W.convertTo(out, CV_32F);
+    return out;
+  }
+  cv::Mat A = W.rowRange(0, 2).clone();
+  if (motion == cv::MOTION_EUCLIDEAN) {
+    const double angle = std::atan2(A.at<double>(1, 0) - A.at<double>(0, 1), A.at<double>(0, 0) + A.at<double>(1, 1));
+    A.at<double>(0, 0) = A.at<double>(1, 1) = std::cos(angle);
+    A.at<double>(1, 0) = std::sin(angle);
+    A.at<double>(0, 1) = -std::sin(angle);
+  }
+  A.convertTo(out, CV_32F);
+  return out;
+}
+
+cv::Mat fromEccWarp(const cv::Mat& warp, int motion) {
+  cv::Mat R = cv::Mat::eye(3, 3, CV_64F);
+  if (motion == cv::MOTION_HOMOGRAPHY) warp.convertTo(R, CV_64F);
+  else warp.convertTo(R.rowRange(0, 2), CV_64F);
+  return R;
+}
+
+double cornerShift(const cv::Mat& A, const cv::Mat& B, cv::Size size) {
+  std::vector<cv::Point2d> corners{{0, 0}, {size.width - 1.0, 0}, {0, size.height - 1.0}, {size.width - 1.0, size.height - 1.0}};
+  std::vector<cv::Point2d> a, b;
+  cv::perspectiveTransform(corners, a, A);
+  cv::perspectiveTransform(corners, b, B);
+  double worst = 0;
+  for (size_t i = 0; i < a.size(); ++i) worst = std::max(worst, cv::norm(a[i] - b[i]));
+  return worst;
+}
+
 }  // namespace
 
+const char* toString(RegistrationMotion motion) {
+  switch (motion) {
+    case RegistrationMotion::euclidean: return "euclidean";
+    case RegistrationMotion::affine: return "affine";
+    case RegistrationMotion::homography: return "homography";
+  }
+  return "?";
+}
+
 void RegistrationOptions::check() const {
-  if (max_dimension < 64) throw InvalidInput("registration: max_dimension must be >= 64");
+  if (max_dimension < 64 || refine_max_dimension < 64) throw InvalidInput("registration: max_dimension must be >= 64");
   if (max_features < 50) throw InvalidInput("registration: max_features must be >= 50");
   if (!(match_ratio > 0 && match_ratio <= 1)) throw InvalidInput("registration: match_ratio must be in (0, 1]");
   if (!(ransac_threshold > 0)) throw InvalidInput("registration: ransac_threshold must be > 0");
@@ -104,6 +159,19 @@ cv::Mat warpToBlurred(const cv::Mat& sharp, const cv::Mat& homography, cv::Size 
   return out;
 }
 
+cv::Mat warpToSharp(const cv::Mat& blurred, const cv::Mat& homography, cv::Size sharp_size) {
+  cv::Mat out;
+  // Bicubic: the blurred shot is band-limited by its kernel, where cubic interpolation is close to exact; bilinear
+  // would low-pass it by a position-dependent amount (a spatially varying extra kernel).
+  cv::warpPerspective(blurred, out, homography, sharp_size, cv::INTER_CUBIC | cv::WARP_INVERSE_MAP,
+                      cv::BORDER_CONSTANT, cv::Scalar::all(0));
+  return out;
+}
+
+cv::Mat overlapMaskInSharp(cv::Size sharp_size, const cv::Mat& homography, cv::Size blurred_size, int margin) {
+  return overlapMask(blurred_size, homography.inv(), sharp_size, margin);
+}
+
 RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, const RegistrationOptions& options) {
   options.check();
   if (sharp.empty() || blurred.empty()) throw InvalidInput("registration: empty image");
@@ -116,8 +184,9 @@ RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, co
     cv::resize(a, a, cv::Size(), s, s, cv::INTER_AREA);
     cv::resize(b, b, cv::Size(), s, s, cv::INTER_AREA);
   }
+  const int motion = eccMotion(options.motion);
 
-  // 1. Features + RANSAC.
+  // 1. Features + RANSAC (similarity for the Euclidean model, whose ECC step drops the scale).
   cv::Mat H;  // working scale, sharp → blurred
   {
     auto akaze = cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0005f);
@@ -149,7 +218,19 @@ RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, co
       result.matches = static_cast<int>(pa.size());
       if (pa.size() >= 8) {
         std::vector<uchar> inlier_mask;
-        cv::Mat candidate = cv::findHomography(pa, pb, cv::RANSAC, options.ransac_threshold, inlier_mask, 4000, 0.999);
+        cv::Mat candidate;
+        if (options.motion == RegistrationMotion::homography) {
+          candidate = cv::findHomography(pa, pb, cv::RANSAC, options.ransac_threshold, inlier_mask, 4000, 0.999);
+        } else {
+          const cv::Mat A = options.motion == RegistrationMotion::affine
+                                ? cv::estimateAffine2D(pa, pb, inlier_mask, cv::RANSAC, options.ransac_threshold, 4000, 0.999)
+                                : cv::estimateAffinePartial2D(pa, pb, inlier_mask, cv::RANSAC, options.ransac_threshold,
+                                                              4000, 0.999);
+          if (!A.empty()) {
+            candidate = cv::Mat::eye(3, 3, CV_64F);
+            A.copyTo(candidate.rowRange(0, 2));
+          }
+        }
         const int inliers = candidate.empty() ? 0 : cv::countNonZero(inlier_mask);
         if (inliers >= options.min_inliers && saneHomography(candidate)) {
           H = candidate;
@@ -175,25 +256,17 @@ RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, co
     result.method = "phase";
   }
   // 3. ECC refinement (template = blurred, input = sharp; the warp maps blurred → sharp coordinates).
-  const int motion = result.method == "phase" ? cv::MOTION_EUCLIDEAN : cv::MOTION_HOMOGRAPHY;
   cv::Mat fa, fb;
   a.convertTo(fa, CV_32F, 1.0 / 255);
   b.convertTo(fb, CV_32F, 1.0 / 255);
-  cv::Mat W = H.inv();
-  cv::Mat warp;
-  if (motion == cv::MOTION_HOMOGRAPHY) W.convertTo(warp, CV_32F);
-  else W.rowRange(0, 2).convertTo(warp, CV_32F);
   if (options.refine_ecc || result.method == "phase") {
     try {
       const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options.ecc_iterations,
                                       options.ecc_epsilon);
-      cv::Mat refined = warp.clone();
+      cv::Mat refined = toEccWarp(H.inv(), motion);
       result.ecc_correlation =
           cv::findTransformECC(fb, fa, refined, motion, criteria, cv::noArray(), options.ecc_smoothing);
-      cv::Mat R = cv::Mat::eye(3, 3, CV_64F);
-      if (motion == cv::MOTION_HOMOGRAPHY) refined.convertTo(R, CV_64F);
-      else refined.convertTo(R.rowRange(0, 2), CV_64F);
-      const cv::Mat Hr = R.inv();
+      const cv::Mat Hr = fromEccWarp(refined, motion).inv();
       if (saneHomography(Hr)) {
         H = Hr;
         result.ecc_refined = true;
@@ -219,6 +292,7 @@ RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, co
     prod.copyTo(masked, mask);
     result.ecc_correlation = cv::sum(masked)[0] / n / std::max(1e-12, sa[0] * sb[0]);
   }
+  result.method += std::string(" (") + toString(options.motion) + ")";
   result.homography = scaleMatrix(1.0 / s) * H * scaleMatrix(s);
   result.overlap_fraction = coverage(sharp.size(), result.homography, blurred.size());
   char detail[200];
@@ -227,6 +301,74 @@ RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, co
                   "the pair does not overlap (best alignment: %.0f%% overlap, correlation %.2f, %d feature inliers)",
                   100.0 * result.overlap_fraction, result.ecc_correlation, result.inliers);
     throw InvalidInput(detail);
+  }
+  return result;
+}
+
+RegistrationResult refineRegistration(const cv::Mat& sharp, const cv::Mat& blurred, const RegistrationResult& coarse,
+                                      const cv::Mat& kernel, const cv::Mat& sharp_valid,
+                                      const RegistrationOptions& options) {
+  options.check();
+  if (sharp.channels() != 1 || blurred.channels() != 1) throw InvalidInput("refineRegistration: single-channel images expected");
+  RegistrationResult result = coarse;
+  const int longest = std::max({sharp.cols, sharp.rows, blurred.cols, blurred.rows});
+  const double s = std::min(1.0, static_cast<double>(options.refine_max_dimension) / longest);
+  // I ⊗ K, now as blurred as B (up to the tone curve, which the equalisation removes). On the working copy: the
+  // image and the kernel are both scaled by s (area-averaged), which keeps their convolution consistent.
+  cv::Mat a8 = toGray8(sharp), b8 = toGray8(blurred);
+  cv::Mat K = normalizeKernel(kernel);
+  cv::Mat mask;
+  if (!sharp_valid.empty()) mask = sharp_valid.clone();
+  if (s < 1) {
+    cv::resize(a8, a8, cv::Size(), s, s, cv::INTER_AREA);
+    cv::resize(b8, b8, cv::Size(), s, s, cv::INTER_AREA);
+    const int kw = std::max(1, static_cast<int>(std::lround(K.cols * s))) | 1;
+    const int kh = std::max(1, static_cast<int>(std::lround(K.rows * s))) | 1;
+    cv::resize(K, K, cv::Size(kw, kh), 0, 0, cv::INTER_AREA);
+    K = normalizeKernel(K);
+    if (!mask.empty()) {
+      cv::resize(mask, mask, a8.size(), 0, 0, cv::INTER_AREA);
+      cv::threshold(mask, mask, 254, 255, cv::THRESH_BINARY);
+    }
+  }
+  cv::Mat a = photometricNormalise(convolve(toUnitGray(a8), K)), b = photometricNormalise(b8);
+  cv::Mat fa, fb;
+  a.convertTo(fa, CV_32F, 1.0 / 255);
+  b.convertTo(fb, CV_32F, 1.0 / 255);
+  const int motion = eccMotion(options.motion);
+  const cv::Mat H0 = scaleMatrix(s) * coarse.homography * scaleMatrix(1.0 / s);
+  // The coarse alignment's correlation on the same working images: the refinement must beat it.
+  auto correlationOf = [&](const cv::Mat& warp_input_to_template) {
+    cv::Mat warped, warped_mask;
+    cv::warpPerspective(fa, warped, warp_input_to_template, fb.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0));
+    const cv::Mat valid = mask.empty() ? cv::Mat(fa.size(), CV_8U, cv::Scalar(255)) : mask;
+    cv::warpPerspective(valid, warped_mask, warp_input_to_template, fb.size(), cv::INTER_NEAREST, cv::BORDER_CONSTANT,
+                        cv::Scalar(0));
+    return cv::computeECC(fb, warped, warped_mask);
+  };
+  try {
+    const double before = correlationOf(H0);
+    const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options.ecc_iterations,
+                                    options.ecc_epsilon);
+    cv::Mat warp = toEccWarp(H0.inv(), motion);
+    cv::findTransformECC(fb, fa, warp, motion, criteria, mask.empty() ? cv::noArray() : mask, 3);
+    const cv::Mat Hw = fromEccWarp(warp, motion).inv();
+    const double after = saneHomography(Hw) ? correlationOf(Hw) : -1;
+    // The coarse alignment is off by at most about the kernel's extent (the blur drags it towards the kernel's
+    // mass); a larger jump is ECC running away, not refining.
+    const double moved = saneHomography(Hw) ? cornerShift(Hw, H0, fa.size()) : 1e9;
+    const double limit = 4.0 + std::max(K.rows, K.cols);
+    const cv::Mat H = scaleMatrix(1.0 / s) * Hw * scaleMatrix(s);
+    if (std::isfinite(after) && after > before && moved < limit) {
+      result.refinement_shift = cornerShift(H, coarse.homography, sharp.size());
+      result.homography = H;
+      result.ecc_correlation = after;
+      result.kernel_refined = true;
+      result.method += "+kernel-ecc";
+      result.overlap_fraction = coverage(sharp.size(), H, blurred.size());
+    }
+  } catch (const cv::Exception&) {
+    // no convergence: keep the coarse alignment
   }
   return result;
 }

@@ -22,11 +22,11 @@ std::vector<Tile> selectTiles(const cv::Mat& sharp, const cv::Mat& valid, const 
   options.check();
   const cv::Rect bounds = cv::boundingRect(valid);
   if (bounds.area() == 0) throw InvalidInput("the pair does not overlap (no usable pixels after registration)");
-  const cv::Mat gray = toUnitGray(sharp);
   auto score = [&](const cv::Rect& r) {
+    const cv::Mat gray = toUnitGray(sharp(r));  // per tile: a 24 MP frame is never converted as a whole
     cv::Mat gx, gy, mag;
-    cv::Sobel(gray(r), gx, CV_64F, 1, 0, 3);
-    cv::Sobel(gray(r), gy, CV_64F, 0, 1, 3);
+    cv::Sobel(gray, gx, CV_64F, 1, 0, 3);
+    cv::Sobel(gray, gy, CV_64F, 0, 1, 3);
     cv::magnitude(gx, gy, mag);
     return cv::mean(mag, valid(r))[0];
   };

@@ -137,7 +137,7 @@ void writeChartPlot(const fs::path& path, const ChartCalibrationResult& result, 
     cv::Scalar colour(90, 90, 90);
     for (const auto& channel : result.channels)
       if (label.rfind(channelName(channel.channel), 0) == 0) colour = colours[channel.channel] * 0.6;
-    series.push_back({grid, samples, colour, label, 1, false, true});
+    series.push_back({grid, samples, colour, label, 2, false, true});
   }
   PlotOptions options;
   options.title = title;

@@ -72,7 +72,9 @@ LoadedImage loadImage(const fs::path& path, const RawDecodeOptions& raw_options)
 LoadedPair loadPair(const fs::path& first, const fs::path& second, BlurredChoice choice, const RawDecodeOptions& raw) {
   LoadedImage a = loadImage(first, raw), b = loadImage(second, raw);
   const std::string both = first.string() + ", " + second.string();
-  if (a.image.size() != b.image.size())
+  // Transposed sizes (one shot portrait, the other landscape) are a pair: calibratePair turns the sharp shot.
+  const bool transposed = a.image.size() == cv::Size(b.image.rows, b.image.cols);
+  if (a.image.size() != b.image.size() && !transposed)
     throw Error("the images differ in size (" + sizeText(a.image) + " vs " + sizeText(b.image) + ")", both);
   if (a.linear != b.linear)
     throw Error("one image is camera RAW and the other is not; give two RAWs or two rendered images", both);
@@ -83,6 +85,7 @@ LoadedPair loadPair(const fs::path& first, const fs::path& second, BlurredChoice
     throw Error("the images come from different cameras (" + a.exposure.camera() + " vs " + b.exposure.camera() + ")",
                 both);
   LoadedPair pair;
+  pair.transposed = transposed && a.image.size() != b.image.size();
   bool second_is_blurred = true;
   if (choice != BlurredChoice::automatic) {
     second_is_blurred = choice == BlurredChoice::second;

@@ -1,6 +1,7 @@
 #include "crfcal/io/plot.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 
 #include <opencv2/imgproc.hpp>
@@ -31,6 +32,29 @@ double niceStep(double range) {
   for (double m : {1.0, 2.0, 2.5, 5.0, 10.0})
     if (m * magnitude >= raw) return m * magnitude;
   return 10 * magnitude;
+}
+
+// A dashed polyline: dashes of `on` pixels separated by `off`, measured along the curve (the points of a sampled
+// curve are often less than a pixel apart, so alternating segments would look solid).
+void dashedPolyline(cv::Mat& image, const std::vector<cv::Point2d>& points, const cv::Scalar& color, int thickness,
+                    double on = 9, double off = 6) {
+  double phase = 0;  // position within the current on+off period
+  for (size_t i = 0; i + 1 < points.size(); ++i) {
+    cv::Point2d a = points[i];
+    const cv::Point2d b = points[i + 1];
+    double length = cv::norm(b - a);
+    while (length > 1e-9) {
+      const bool drawing = phase < on;
+      const double left = drawing ? on - phase : on + off - phase;
+      const double step = std::min(left, length);
+      const cv::Point2d c = a + (b - a) * (step / length);
+      if (drawing) cv::line(image, cv::Point(cvRound(a.x), cvRound(a.y)), cv::Point(cvRound(c.x), cvRound(c.y)), color,
+                            thickness, cv::LINE_AA);
+      phase = std::fmod(phase + step, on + off);
+      length -= step;
+      a = c;
+    }
+  }
 }
 
 }  // namespace
@@ -79,30 +103,38 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
   }
   cv::rectangle(canvas, area, black, 1);
   cv::putText(canvas, options.x_label, {area.x + area.width / 2 - 30, canvas.rows - 15}, font, 0.55, black, 1, cv::LINE_AA);
-  cv::putText(canvas, options.y_label, {8, top - 8}, font, 0.5, black, 1, cv::LINE_AA);
+  cv::putText(canvas, options.y_label, {8, top - 16}, font, 0.5, black, 1, cv::LINE_AA);
   if (!options.title.empty()) cv::putText(canvas, options.title, {left, 28}, font, 0.65, black, 1, cv::LINE_AA);
 
   cv::Mat plot = canvas(area);
   const cv::Point offset(area.x, area.y);
   for (const auto& s : series) {
-    std::vector<cv::Point> points;
+    std::vector<cv::Point2d> points;
     for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
       if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i])) continue;
-      points.emplace_back(static_cast<int>(std::lround(px(s.x[i]))) - offset.x,
-                          static_cast<int>(std::lround(py(s.y[i]))) - offset.y);
+      points.emplace_back(px(s.x[i]) - offset.x, py(s.y[i]) - offset.y);
     }
     if (s.markers) {
-      for (const auto& p : points) cv::circle(plot, p, s.thickness + 1, s.color, cv::FILLED, cv::LINE_AA);
+      for (const auto& p : points)
+        cv::circle(plot, cv::Point(cvRound(p.x), cvRound(p.y)), s.thickness + 1, s.color, cv::FILLED, cv::LINE_AA);
     } else if (s.dashed) {
-      for (size_t i = 0; i + 1 < points.size(); i += 2) cv::line(plot, points[i], points[i + 1], s.color, s.thickness, cv::LINE_AA);
+      dashedPolyline(plot, points, s.color, s.thickness);
     } else if (points.size() > 1) {
-      cv::polylines(plot, points, false, s.color, s.thickness, cv::LINE_AA);
+      std::vector<cv::Point> polyline;
+      for (const auto& p : points) polyline.emplace_back(cvRound(p.x), cvRound(p.y));
+      cv::polylines(plot, polyline, false, s.color, s.thickness, cv::LINE_AA);
     }
   }
   int legend_y = area.y + 20;
   for (const auto& s : series) {
     if (s.label.empty()) continue;
-    cv::line(canvas, {area.x + 12, legend_y - 5}, {area.x + 40, legend_y - 5}, s.color, 3, cv::LINE_AA);
+    if (s.markers)
+      cv::circle(canvas, {area.x + 26, legend_y - 5}, s.thickness + 1, s.color, cv::FILLED, cv::LINE_AA);
+    else if (s.dashed)
+      dashedPolyline(canvas, {{area.x + 12.0, legend_y - 5.0}, {area.x + 42.0, legend_y - 5.0}}, s.color,
+                     std::max(2, s.thickness), 8, 5);
+    else
+      cv::line(canvas, {area.x + 12, legend_y - 5}, {area.x + 40, legend_y - 5}, s.color, 3, cv::LINE_AA);
     cv::putText(canvas, s.label, {area.x + 48, legend_y}, font, 0.45, black, 1, cv::LINE_AA);
     legend_y += 20;
   }

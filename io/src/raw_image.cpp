@@ -5,6 +5,7 @@
 #include <memory>
 
 #include <libraw/libraw.h>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "crfcal/error.hpp"
@@ -116,6 +117,31 @@ RawImage readRaw(const fs::path& path, const RawDecodeOptions& options) {
   result.model = raw->imgdata.idata.model;
   result.exposure = exposureFrom(*raw);
   return result;
+}
+
+cv::Mat readRawThumbnail(const fs::path& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw Error("file not found", path.string());
+  auto raw = std::make_unique<LibRaw>();
+  int code = raw->open_file(path.string().c_str());
+  if (code != LIBRAW_SUCCESS) throw Error("not a readable camera RAW (" + librawError(code) + ")", path.string());
+  code = raw->unpack_thumb();
+  if (code != LIBRAW_SUCCESS) throw Error("no usable embedded preview (" + librawError(code) + ")", path.string());
+  int error = 0;
+  libraw_processed_image_t* thumb = raw->dcraw_make_mem_thumb(&error);
+  if (thumb == nullptr) throw Error("cannot extract the embedded preview (" + librawError(error) + ")", path.string());
+  std::unique_ptr<libraw_processed_image_t, void (*)(libraw_processed_image_t*)> guard(thumb, LibRaw::dcraw_clear_mem);
+  cv::Mat image;
+  if (thumb->type == LIBRAW_IMAGE_JPEG) {
+    const cv::Mat bytes(1, static_cast<int>(thumb->data_size), CV_8U, thumb->data);
+    image = cv::imdecode(bytes, cv::IMREAD_COLOR);
+  } else if (thumb->type == LIBRAW_IMAGE_BITMAP && thumb->bits == 8 && (thumb->colors == 3 || thumb->colors == 1)) {
+    const cv::Mat view(thumb->height, thumb->width, thumb->colors == 3 ? CV_8UC3 : CV_8UC1, thumb->data);
+    if (thumb->colors == 3) cv::cvtColor(view, image, cv::COLOR_RGB2BGR);
+    else cv::cvtColor(view, image, cv::COLOR_GRAY2BGR);
+  }
+  if (image.empty()) throw Error("the embedded preview is not a decodable JPEG or 8-bit bitmap", path.string());
+  return image;
 }
 
 }  // namespace crfcal::io

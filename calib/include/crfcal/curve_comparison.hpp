@@ -32,14 +32,22 @@ struct ChannelComparison {
   double rmse_covered = 0;
   double max_error_covered = 0;
   int samples_covered = 0;  // grid points inside the covered range
+  // Shape difference over the covered range, free of the normalisation φ(1) = 1 (which rests on each curve's
+  // extrapolation above its data when the top of the range is not observed): RMSE of φ_A − a·φ_B with the
+  // least-squares factor a over the covered range.
+  double scale_covered = 1;          // a
+  double rmse_covered_aligned = 0;
 };
 
 struct CurveComparison {
   std::vector<ChannelComparison> channels;
   double worst_rmse = 0;          // max over channels of rmse (over [0,1])
   double worst_rmse_covered = 0;  // max over channels of rmse_covered
-  // True when every channel's RMSE (over [0,1], or over the covered range) is ≤ tolerance.
-  bool withinTolerance(double tolerance, bool covered_only = false) const;
+  double worst_rmse_covered_aligned = 0;
+  // Which RMSE a tolerance applies to.
+  enum class Range { Full, Covered, CoveredAligned };
+  // True when every channel's RMSE (over [0,1], over the covered range, or its scale-aligned form) is ≤ tolerance.
+  bool withinTolerance(double tolerance, Range range = Range::Full) const;
   std::string summary() const;  // a readable table, one line per channel
 };
 

@@ -1,19 +1,27 @@
 #pragma once
-// Pairs with one planted effect: a real photograph rendered through a known φ exactly like the semi-real handheld
-// pairs (handheld_simulation.hpp: E = photo^2.2 scaled to `exposure`; I = ψ(E + n_I); B = ψ(min(1, r (E ⊗ K) + n_B)),
-// Poisson–Gaussian irradiance noise), plus ONE named effect of effects.hpp at a given strength:
+// Pairs with one planted effect. The clean pair is the seed's simulation (issue 6: "one pointwise curve per channel,
+// Gaussian noise added to I only, exact r, one global kernel, no clipping, no vignetting, no black offset") made
+// from a real photograph: E = photo^2.2 scaled to a mean `exposure`; I = ψ(E) + n, n ~ N(0, sharp_sigma²) in the
+// intensity domain (Sec. 5); B = ψ(min(1, r (E ⊗ K) + n_B)) with the long exposure's small Poisson–Gaussian
+// irradiance noise n_B; both stored as 8-bit. ONE effect is then planted at a given strength s:
 //   none
-//   exposure_ratio_mismatch  EXIF r = true r · (1 + s)^±1 (sign from the seed)
-//   channel_mixing           B's irradiance colours mixed: E'_c = (1 − s) E_c + s/2 Σ_{d≠c} E_d  (colour input)
-//   signal_dependent_noise   extra intensity-domain noise in I with variance s · I (on top of the camera noise)
-//   clipping                 B's irradiance clipped at the level above which a fraction s of it lies (a sensor or
-//                            processing clip below full scale)
-//   vignetting               B's irradiance × (1 − s ρ²), ρ = distance to the centre / half-diagonal (aperture change)
+//   exposure_ratio_mismatch  the EXIF ratio is off: r_EXIF = r · (1 + s)^±1 (sign from the seed)
+//   channel_mixing           B's irradiance colours are mixed before the curve (colour input):
+//                            E'_c = (1 − s) E_c + s/2 Σ_{d≠c} E_d
+//   signal_dependent_noise   I's noise variance depends on the level: σ²(v) = σ₀² · s^((0.5 − v)/0.8), i.e. the
+//                            ratio of the variances at v = 0.1 and v = 0.9 is s (darks noisier, the shape of
+//                            Poisson noise seen through a concave camera curve); σ₀ = sharp_sigma
+//   clipping                 B's irradiance is clipped at a plateau below full scale (sensor/processing clip):
+//                            a fraction s of the informative pixels (B below full scale, I unsaturated over the
+//                            kernel's support) lies on the plateau
+//   vignetting               B's irradiance × (1 − s ρ²), ρ = distance to the centre / half-diagonal
+//                            (the two shots differ in aperture: their vignetting ratio)
 //   spatially_varying_blur   B blurred with K at the left edge blending linearly into K' at the right edge:
-//                            K(x) = (1 − t) K + t K', t = min(s, 1) · x / width, K' = K rotated by 90°
-//   black_level_offset       an irradiance offset s added to one shot (B: flare, or I; chosen by the seed)
-// The stated detectability thresholds (minimum strengths a calibrate run must detect) are in
-// plantingThreshold(); the tests and `crfcal bench effects` draw strengths uniformly in [threshold, 2·threshold].
+//                            K(x) = (1 − t) K + t K', t = s · x / width, K' = K rotated by 90°
+//   black_level_offset       an irradiance offset s added to one shot (B: flare; or I; chosen by the seed)
+// The stated detectability thresholds (minimum strengths that calibration must detect, with the reason for each
+// value) are plantingThreshold() / thresholdReason(); tests and `crfcal bench effects` draw strengths uniformly
+// in [threshold, 2·threshold].
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -29,9 +37,9 @@ struct PlantingOptions {
   double strength = 0;           // meaning per effect, see above
   double ratio = 1.0;            // true exposure ratio r
   double exposure = 0.45;        // mean irradiance of the sharp frame (before r)
-  double noise_gain_sharp = 4e-4;   // Poisson part of I (variance = gain · E)
-  double noise_gain_blurred = 2e-5;
-  double read_noise = 1e-6;
+  double sharp_sigma = 0.01;     // I's intensity-domain noise std (2.6 of 255: a high-ISO short exposure)
+  double noise_gain_blurred = 2e-5;  // B: Poisson part of the irradiance noise (variance = gain · E)
+  double read_noise_blurred = 1e-6;  // B: Gaussian part (variance)
   double shift_x = 0, shift_y = 0, rotation_deg = 0;  // handheld misregistration of B (registration's job)
   std::uint64_t seed = 1;
   void check() const;            // throws InvalidInput
@@ -45,10 +53,13 @@ struct PlantedPair {
   std::string effect;
   double strength = 0;
   std::string detail;            // e.g. which shot carries the offset
+  double plateau_intensity = 1;  // clipping: B's plateau level (φ above it is not measurable from the pair)
 };
 
 // The minimum strength of each effect that calibration is expected to detect (documented, used by tests/bench).
 double plantingThreshold(const std::string& effect);
+// Why that value (the φ bias it causes, or the physical tolerance it exceeds), one line.
+std::string thresholdReason(const std::string& effect);
 
 PlantedPair plantEffect(const cv::Mat& photo, const ResponseModel& phi, const cv::Mat& kernel,
                         const PlantingOptions& options = {});

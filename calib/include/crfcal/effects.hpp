@@ -4,36 +4,60 @@
 // HELD-OUT error by a documented criterion (never by a threshold tuned on particular data).
 //
 // Residuals (irradiance domain, intensity-scaled like the fitter's ω = 1/φ'(B)², Eq. 21 to first order):
-//   e_p = (φ(B_p) − Ŷ_p) / φ'(B_p),   base model Ŷ = a · (φ(I) ⊗ K)(p)  (a = the exposure ratio, free)
-// on a regular subsample of the unsaturated pixels of the fit window (flat and edge pixels alike).
-// Extended models (all nested in the base; linear in their parameters unless noted):
+//   e_p = (φ(B_p) − Ŷ_p) / φ'(B_p),   base model Ŷ = a · (g(I) ⊗ K)(p)  (a = the exposure ratio, free)
+// on a regular subsample of the usable pixels of the fit window (flat and edge pixels alike); g = R φ the level
+// function debiased for I's noise (noise_debias.hpp), so that Jensen's bias and the clip of the noise at 0 do not
+// pose as an offset. φ is re-fitted jointly with every model (base included: the comparison is fair and nested):
+// φ = φ̂ + Σ α_k h_k over the first `phi_terms` EMoR basis curves h_k, with φ'(B) in the residual following the
+// re-fit (Levenberg–Marquardt; a fixed 1/φ̂' would let a re-fit "explain" everything by flattening φ), so an effect
+// that the base fit absorbed into φ (an offset bends φ by ≈ c / (r − 1)) is still visible.
+// Extended models (nested in the base):
 //   vignetting              Ŷ = a X (1 + v₁ρ² + v₂ρ⁴)        ρ = distance to the frame centre / half-diagonal
 //                                                             (the two shots can differ in aperture)
-//   black_level_offset      Ŷ = a X + c                       (flare / black-level offset in one shot)
-//   channel_mixing          Ŷ_c = Σ_d m_cd X_d                 (3×3 mix before the per-channel curves; rgb only)
-//   clipping                Ŷ = min(a X, c)                   (sensor or processing clip below full scale)
-//   spatially_varying_blur  X from per-tile kernels (grid of tiles) instead of one K
-//   exposure_ratio_mismatch a free vs a fixed to the EXIF ratio (footnote 4), within the selected model
-//   signal_dependent_noise  Var(e) = α + β · level vs constant (held-out Gaussian likelihood)
-// Every model (base included) may also re-adjust φ by `phi_terms` EMoR basis curves h_k, linearised:
-// columns a₀ (K ⊗ h_k(I)) − h_k(B) — so an effect that the base φ fit partly absorbed is still visible.
-// signal_dependent_noise: held-out residual variance modelled as α u + γ (σ_I constant in intensity, the fitter's
-// assumption; u = (a/φ'(B))² K²⊗φ'(I)²) vs α u + β t + γ (σ_I² = α + β I; t = (a/φ'(B))² K²⊗(φ'(I)² I)).
+//   black_level_offset      Ŷ = a X + c                       (flare / black-level offset in one shot; an offset d
+//                                                             in I is c = −a d), fitted jointly with φ
+//   channel_mixing          Ŷ_c = Σ_d m_cd X_d                 (3×3 mix before the per-channel curves; rgb only;
+//                                                             the row sum Σ_d m_cd is the exposure ratio; the
+//                                                             channels' φ re-fits are coupled through X_d)
+//   clipping                Ŷ = min(a X, φ(b_c))              (a plateau b_c of B below full scale: a sensor or
+//                                                             processing clip; b_c on a grid of B's top quantiles,
+//                                                             "none" included)
+//   exposure_ratio_mismatch a free vs a = r_EXIF, each model with its own φ (the fitter with r fixed), within the
+//                                                             selected model
+//   spatially_varying_blur  a kernel linear in the position, K₀ + u K_x + v K_y (camera roll to first order), vs one
+//                           K₀, both fitted by least squares on the same fold (kernel estimated by the pipeline only)
 // Cross-validation: the window is cut in a grid of tiles, each tile in two halves; the halves form two folds in a
-// checkerboard. Parameters (and, for spatially_varying_blur, the tile kernels) are fitted on one fold and the
-// error is measured on the other, both ways. The held-out error E = Σ e² is accumulated per 32×32 block.
-// Criterion (every effect): relative held-out drop  gain = (E_base − E_ext) / E_base ≥ min_gain  AND the paired
-// block differences d_b = E_base,b − E_ext,b significant: z = mean(d) / (sd(d) / √n) ≥ min_z (tile-to-tile
-// spread, a one-sided paired test). Effects are added greedily (largest significant gain first, the rest
-// re-tested against the grown model), so one planted effect does not make its confounders fire.
-// exposure_ratio_mismatch in addition needs |a / r_EXIF − 1| > ratio_tolerance (nominal EXIF times and
-// apertures are rounded to 1/3 stop). signal_dependent_noise uses the held-out negative log-likelihood drop per
-// sample (nats) ≥ min_nll_gain with the same paired z.
-// When an effect is detected the reported φ comes from the extended model: the images are corrected with the
-// fitted parameters (B' = ψ(φ(B)/g(ρ)), B' = ψ(φ(B) − c) or I' = ψ(φ(I) − d), B' = ψ(M⁻¹ φ(B))), the clip level
-// is excluded like saturation, per-tile fits with per-tile kernels are averaged — then φ is refitted
-// (fitInverseCrf, same options). signal_dependent_noise and exposure_ratio_mismatch keep the base φ (the fitter
-// already fits r freely; it has no per-pixel weights) — their entries say so.
+// checkerboard. Parameters are fitted on one fold and the error is measured on the other, both ways (the extended
+// model's fit starts from the base model's, so the comparison reflects the added parameters).
+// Criterion: relative held-out drop gain = (E_base − E_ext) / E_base ≥ min_gain AND significant: a score test of
+// the drop Σ d_i (d_i = e²_base,i − e²_ext,i) against what noise alone would give for the same change of
+// prediction δ_i = e_base,i − e_ext,i, z = Σ d / (2 σ sqrt(A Σ δ²)) ≥ min_z, with σ² the base model's held-out
+// residual variance and A the residuals' design effect (the variance inflation of 32×32 block sums: spatially
+// correlated or systematically misfit residuals make the test conservative). Clipping acts locally: its drop is
+// taken over the 16×16 blocks that contain plateau samples (chosen from B alone). Effects are added greedily
+// (largest significant gain first); after each, the pair is corrected with the grown model, φ refitted and the
+// remaining effects re-tested around it, so one planted effect does not make its confounders fire.
+// exposure_ratio_mismatch in addition needs |a / r_EXIF − 1| > ratio_tolerance (nominal EXIF times, ISOs and
+// f-numbers are rounded to 1/3 stop: up to ≈ 6 % each).
+// signal_dependent_noise is tested on I itself (its noise is what the seed models; in the residuals above it is
+// averaged by the kernel and hidden under B's quantisation): Immerkær's residual (noise_estimation.hpp) in each of
+// `noise_bins` level bins (equal counts of I's 5×5 local mean), on the 30 % of each bin with the least 7×7 residual
+// energy (texture only adds energy; the same fraction everywhere keeps the ratios), same folds. Base: one variance
+// for all levels (the seed's homoscedastic Gaussian); extended: one per level bin. Robust (MAD) scales on one fold,
+// held-out Huber negative log-likelihood on the other; detected when the paired block t (as z) ≥ min_z AND the
+// size of the level dependence — the variance ratio between levels 0.1 and 0.9 of the log-linear trend over the
+// bins — ≥ min_noise_contrast (below a contrast κ homoscedastic weights keep ≥ 4κ/(1+κ)² of the efficiency —
+// Kantorovich — 89 % at κ = 2).
+// When an effect is detected the reported φ comes from the extended model: the jointly re-fitted φ_ext and the
+// parameters correct the pair (B' = ψ(φ(B)/g(ρ)) for vignetting, B' = ψ(φ(B) − c) for an offset,
+// I'_c = ψ_c(φ_c(I_c) + Σ_d (m_cd/a_c)(φ_d(I_d) − φ_c(I_c))) for mixing — only the channel's own row; the plateau is
+// excluded like saturation; per-tile fits with the first-order kernel at each tile's centre, averaged; a
+// level-dependent σ(v) goes to the fitter's noise_sigma_per_level when its noise handling uses σ; the extended
+// model's r starts the fitter) and φ is refitted (fitInverseCrf, same options), `refit_rounds` times (parameters
+// and φ_ext re-estimated with each refitted φ). With only exposure_ratio_mismatch, φ is refitted from the
+// diagnostics' r when the fitter's own r differs by > 2 % (a wrong EXIF start can trap it); signal_dependent_noise
+// keeps the fitted φ when the fitter uses no σ (noise handling none: the moments estimator is unbiased whatever
+// the noise law) — the entry says so.
 #include <map>
 #include <string>
 #include <vector>
@@ -51,17 +75,18 @@ const std::vector<std::string>& effectNames();
 struct EffectOptions {
   bool enabled = true;
   double min_gain = 0.05;        // relative held-out error drop required (5 %)
-  double min_z = 3.0;            // paired block test of the drop (one-sided, ≈ p < 0.002 for normal blocks)
-  double min_nll_gain = 0.05;    // signal_dependent_noise: held-out NLL drop per sample, nats
+  double min_z = 3.0;            // significance of the drop (one-sided normal deviate, p ≈ 0.0013)
+  double min_noise_contrast = 2.0;  // signal_dependent_noise: variance contrast over the level bins (Kantorovich)
+  int noise_bins = 8;            // signal_dependent_noise: level bins (equal counts)
   double ratio_tolerance = 0.10; // exposure_ratio_mismatch: |a/r_EXIF − 1| above this (EXIF values are nominal)
-  int block = 32;                // pairing block side, pixels
+  int block = 32;                // block side for the design effect and the noise test, pixels
   int max_samples = 40000;       // regular subsample of the usable pixels per channel
-  int grid = 0;                  // tiles per side for the folds / per-tile kernels (0: 2 below 600 px, else 3)
+  int grid = 0;                  // tiles per side for the folds / per-tile refits (0: 2 below 600 px, else 3)
   double min_derivative = 0.05;  // φ' floor in the residual scaling
-  int phi_terms = 1;             // every model (base too) may re-adjust φ by this many EMoR basis curves
-                                 // (linearised), so that a φ that absorbed an effect does not hide it
-  bool test_spatial_blur = true; // needs 2·grid² + 2 kernel estimations (the slowest test)
+  int phi_terms = 4;             // every model (base too) re-fits φ by this many EMoR basis curves
+  bool test_spatial_blur = true; // first-order kernel test (only when the pipeline estimated the kernel)
   bool refit = true;             // refit φ with the extended model when an effect is detected
+  int refit_rounds = 3;          // correct → refit → re-estimate rounds (after one per selected effect in the search)
   void check() const;            // throws InvalidInput
 };
 
@@ -69,10 +94,10 @@ struct EffectEntry {
   std::string name;
   bool detected = false;
   bool tested = false;           // false: not applicable (detail says why)
-  double statistic = 0;          // paired z of the held-out drop
+  double statistic = 0;          // z of the held-out drop (score test; noise: paired block t)
   double threshold = 0;          // min_z
   double gain = 0;               // relative held-out error drop (nats per sample for signal_dependent_noise)
-  double gain_threshold = 0;     // min_gain (min_nll_gain)
+  double gain_threshold = 0;     // min_gain (signal_dependent_noise: min_noise_contrast, on parameters["contrast"])
   std::map<std::string, double> parameters;  // the extended model's fitted parameters
   std::string detail;
 };

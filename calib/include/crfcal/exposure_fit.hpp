@@ -49,6 +49,8 @@ struct BracketFitOptions {
   int samples = 4000;       // pixel positions drawn (deterministic)
   int max_evaluations = 6000;
   std::uint64_t seed = 7;
+  bool fixed_exposures = false;  // every exposure at its nominal value (the EXIF assumption): only φ is fitted
+  cv::Rect region;               // draw the pixels from this region only (empty: the whole frame)
   void check() const;
 };
 
@@ -66,5 +68,11 @@ struct BracketFitResult {
 // relative exposures (e.g. EXIF times), used for the start and for the span. Throws InvalidInput.
 BracketFitResult fitBracket(const std::vector<cv::Mat>& frames, const std::vector<double>& nominal_exposure,
                             const BracketFitOptions& options = {});
+
+// Held-out check of a bracket fit: each frame j + 1 predicted from frame j through the fit, ẑ = ψ(s_j φ(z_j))
+// (s_j the fit's step ratio), on the pixels of `region` (empty: whole frame) well exposed in both frames; RMS of
+// ẑ − z_{j+1} in intensity units (per step and over all steps, last entry).
+std::vector<double> bracketPredictionRmse(const std::vector<cv::Mat>& frames, const BracketFitResult& fit,
+                                          const cv::Rect& region = {}, double low = 0.04, double high = 0.94);
 
 }  // namespace crfcal

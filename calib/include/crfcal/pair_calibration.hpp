@@ -1,8 +1,10 @@
 #pragma once
 // The whole dual-image calibration of Sec. 4 on a real (handheld) pair:
-//   saturation check → registration (registration.hpp) → edge-rich tiles (tile_selection.hpp) →
+//   saturation check → registration (registration.hpp; the blurred shot is resampled into the sharp frame, the
+//   noisy sharp shot is never resampled) → edge-rich tiles (tile_selection.hpp) →
 //   kernel estimation (kernel_estimation.hpp) in an approximately linear domain (the sharp image's histogram
 //   matched to the blurred one's: a monotone map that removes most of the exposure and tone difference) →
+//   kernel-aware registration refinement (ECC of I ⊗ K against B) and the kernel again →
 //   φ fit per channel (crf_fitter.hpp, Eq. 21–25) → `rounds` × { kernel re-estimated in the irradiance domain
 //   φ(I), φ(B) with the current φ_G; φ refitted } with the change per round reported.
 // Pure computation: images in, curves/kernel/diagnostics out; progress through a callback.
@@ -27,11 +29,14 @@ struct PairCalibrationOptions {
   TileSelectionOptions tiles;
   CrfFitOptions fit;                 // initial_ratio = the EXIF ratio (footnote 4) or --ratio
   bool register_pair = true;         // false: the pair is already aligned
+  bool refine_registration = true;   // kernel-aware refinement (ECC of I ⊗ K against B) after the first kernel
   cv::Mat given_kernel;              // non-empty: skip estimation (--kernel FILE)
   bool rgb = true;                   // fit R, G, B (else G only; grey input is always one channel "G")
   int rounds = 2;                    // kernel ↔ φ rounds after the first fit (Sec. 4 iterates φ and r; we add K)
   double saturated_frame_limit = 0.6;  // more than this fraction of an image clipped: "saturated frame"
-  int max_fit_side = 2048;           // the fit sees at most this window around the best tile (speed on 24 MP)
+  double min_blur_radius = 1.0;      // kernel RMS radius below this (px): warn that r is weakly determined
+  double min_covered_span = 0.5;     // intensity span covered by a channel's data below this: warn (extrapolation)
+  int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
   std::function<void(const std::string& stage, double fraction, const std::string& detail)> progress;
   void check() const;                // throws InvalidInput
@@ -47,6 +52,7 @@ struct CalibrationRound {
 
 struct PairCalibrationResult {
   RegistrationResult registration;
+  double sharp_rotation_deg = 0;         // ±90: the sharp shot was framed in the other orientation and turned
   KernelEstimate kernel;                 // final kernel (given kernels: kernel set, other fields default)
   bool kernel_estimated = true;
   std::vector<Tile> tiles;
@@ -55,6 +61,8 @@ struct PairCalibrationResult {
   std::vector<std::string> channels;     // "R","G","B" or "G"
   std::map<std::string, CrfFitResult> fits;
   std::vector<CalibrationRound> rounds;
+  double blur_radius = 0;                // RMS radius of the final kernel about its centroid, pixels
+  std::map<std::string, std::pair<double, double>> covered_range;  // per channel: intensities the data constrain
   cv::Rect fit_window;                   // region handed to the fitter (full-resolution coordinates)
   cv::Mat gamma_map;                     // Γ = B − I ⊗ K on G inside fit_window (CV_64F)
   cv::Mat weights;                       // CV_8U, pixels used by the G fit inside fit_window
@@ -65,9 +73,10 @@ struct PairCalibrationResult {
   std::string summary() const;
 };
 
-// sharp / blurred: the two shots (grey or BGR, CV_8U or CV_16U, same depth and channels). Throws InvalidInput
-// with a one-line reason for saturated frames, a non-overlapping pair, an edgeless pair, a kernel at its size
-// limit.
+// sharp / blurred: the two shots (grey or BGR, CV_8U or CV_16U, same depth and channels; the same size, or
+// transposed sizes — portrait vs landscape — in which case the sharp shot is turned by the ±90° that registers).
+// All outputs (gamma map, weights, kernel) are in the (turned) sharp frame. Throws InvalidInput with a one-line
+// reason for saturated frames, a non-overlapping pair, an edgeless pair, a kernel at its size limit.
 PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred, const PairCalibrationOptions& options);
 
 }  // namespace crfcal

@@ -1,24 +1,35 @@
 #pragma once
-// Coarse registration of a handheld sharp/blurred pair (seed Sec. 4: "We first align the two images").
+// Registration of a handheld sharp/blurred pair (seed Sec. 4: "We first align the two images").
 // The two shots differ in exposure, ISO noise and blur, so both are first photometrically normalised (each grey
-// image histogram-equalised: the CRF and the exposure ratio are monotone maps, which equalisation removes),
-// then a global homography is found on a downscaled copy: AKAZE features + ratio-test matching + RANSAC
-// (cv::findHomography), refined by ECC (cv::findTransformECC, both images Gaussian-smoothed so that the blur
-// difference matters less). Without enough feature matches (e.g. strong blur), phase correlation gives the
-// translation that seeds ECC. Sub-pixel residual shift is left to the kernel, which absorbs it (Sec. 4, [27]).
+// image histogram-equalised: the CRF and the exposure ratio are monotone maps, which equalisation removes).
+// 1. Coarse: a global motion on a downscaled copy: AKAZE features + ratio-test matching + RANSAC, refined by ECC
+//    (cv::findTransformECC, both images Gaussian-smoothed so that the blur difference matters less). Without
+//    enough feature matches (e.g. strong blur), phase correlation gives the translation that seeds ECC.
+// 2. Kernel-aware refinement (refineRegistration): once a kernel K is known, ECC between I ⊗ K and B — now
+//    equally blurred, so the blur no longer biases the alignment (an asymmetric handheld kernel drags a plain
+//    sharp-vs-blurred ECC towards its centroid and, with a homography's 8 degrees of freedom, into spurious
+//    scale and shear that no kernel can absorb).
+// Motion model: Euclidean (rotation + translation) by default — a handheld camera turns by a fraction of a
+// degree, whose perspective terms are far below a pixel; affine and homography are options. The sub-pixel
+// residual translation is left to the kernel, which absorbs it (Sec. 4, [27]).
 #include <string>
 
 #include <opencv2/core.hpp>
 
 namespace crfcal {
 
+enum class RegistrationMotion { euclidean, affine, homography };
+const char* toString(RegistrationMotion motion);
+
 struct RegistrationOptions {
+  RegistrationMotion motion = RegistrationMotion::euclidean;
   int max_dimension = 1024;        // working copy: longest side downscaled to this (cost independent of size)
+  int refine_max_dimension = 1536; // working copy of the kernel-aware refinement (sub-pixel precision matters)
   int max_features = 3000;         // AKAZE keypoints kept per image
   double match_ratio = 0.8;        // Lowe's ratio test
   double ransac_threshold = 2.5;   // RANSAC reprojection threshold, working-copy pixels
   int min_inliers = 15;            // fewer RANSAC inliers: fall back to phase correlation + ECC
-  bool refine_ecc = true;          // ECC refinement of the homography
+  bool refine_ecc = true;          // ECC refinement of the coarse motion
   int ecc_iterations = 80;
   double ecc_epsilon = 1e-5;
   int ecc_smoothing = 5;           // Gaussian filter size used inside ECC (odd)
@@ -35,9 +46,11 @@ struct RegistrationResult {
   int matches = 0;               // after the ratio test
   int inliers = 0;               // RANSAC inliers
   bool ecc_refined = false;
-  std::string method;            // "features+ransac+ecc", "features+ransac", "phase+ecc"
+  bool kernel_refined = false;   // refineRegistration succeeded
+  double refinement_shift = 0;   // largest corner displacement the kernel-aware refinement applied, pixels
+  std::string method;            // e.g. "features+ransac+ecc", "phase+ecc", "+kernel-ecc"
   double scale = 1;              // working-copy scale
-  cv::Point2d shift() const;     // translation part at the image centre (blurred − sharp), pixels
+  cv::Point2d shift() const;     // translation part (image of the origin), pixels
   double rotationDegrees() const;  // counter-clockwise positive (cv::getRotationMatrix2D convention)
   std::string summary() const;
 };
@@ -46,8 +59,26 @@ struct RegistrationResult {
 // "the pair does not overlap ..." when no consistent alignment exists.
 RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, const RegistrationOptions& options = {});
 
+// Kernel-aware refinement of `coarse`: ECC (the options' motion model) between I ⊗ K and B, both normalised.
+// `sharp`, `blurred`: single-channel, any depth; `sharp_valid` (optional CV_8U, sharp frame): pixels of I to use.
+// Returns `coarse` unchanged (kernel_refined = false) when ECC fails, does not improve the correlation of the
+// equally blurred copies, or jumps by more than the kernel's extent + 4 working-copy pixels (ECC running away).
+RegistrationResult refineRegistration(const cv::Mat& sharp, const cv::Mat& blurred, const RegistrationResult& coarse,
+                                      const cv::Mat& kernel, const cv::Mat& sharp_valid = {},
+                                      const RegistrationOptions& options = {});
+
 // The sharp image resampled into the blurred frame (bilinear; any type/channels). Pixels with no source are 0.
 cv::Mat warpToBlurred(const cv::Mat& sharp, const cv::Mat& homography, cv::Size blurred_size);
+
+// The blurred image resampled into the sharp frame: out(p) = blurred(H p). The blurred shot is smooth, so
+// resampling it costs almost nothing, whereas resampling the sharp, noisy shot would low-pass it by a
+// position-dependent amount (bilinear weights) and change its noise — which the kernel would then have to undo
+// (checkerboard kernels) and the CRF fit would mistake for signal. Bicubic. Pixels with no source are 0.
+cv::Mat warpToSharp(const cv::Mat& blurred, const cv::Mat& homography, cv::Size sharp_size);
+
+// CV_8U mask (255) of the sharp frame whose image under `homography` lies inside the blurred frame, eroded by
+// `margin` pixels (the frame's own border excluded too).
+cv::Mat overlapMaskInSharp(cv::Size sharp_size, const cv::Mat& homography, cv::Size blurred_size, int margin = 0);
 
 // CV_8U mask (255) of the blurred frame covered by the warped sharp image, eroded by `margin` pixels.
 cv::Mat overlapMask(cv::Size sharp_size, const cv::Mat& homography, cv::Size blurred_size, int margin = 0);

@@ -32,13 +32,14 @@ enum class BlurredChoice { automatic, first, second };
 struct LoadedPair {
   LoadedImage sharp, blurred;
   bool swapped = false;         // the first argument turned out to be the blurred image
+  bool transposed = false;      // portrait vs landscape (W×H vs H×W): calibratePair turns the sharp shot
   std::string blurred_reason;   // why this one is the blurred image
   std::optional<ExposureRatioFactors> exif_ratio;  // footnote 4, when both EXIFs are usable
   std::string exif_problem;     // why there is no EXIF ratio
 };
 
-// Loads both, checks they can form a pair (same size, same camera when both say, same kind), decides the blurred
-// one. Throws crfcal::Error with a one-line reason naming the file(s).
+// Loads both, checks they can form a pair (same size — or transposed, portrait vs landscape —, same camera when
+// both say, same kind), decides the blurred one. Throws crfcal::Error with a one-line reason naming the file(s).
 LoadedPair loadPair(const std::filesystem::path& first, const std::filesystem::path& second,
                     BlurredChoice choice = BlurredChoice::automatic, const RawDecodeOptions& raw = {});
 

@@ -37,6 +37,11 @@ bool isRawFile(const std::filesystem::path& path);
 // real pixel data (e.g. a pruned sample that decodes to an all-zero frame).
 RawImage readRaw(const std::filesystem::path& path, const RawDecodeOptions& options = {});
 
+// The camera's own rendering embedded in the RAW (the largest thumbnail/preview LibRaw exposes: JPEG or 8-bit
+// bitmap), as 8-bit BGR: a JPEG of the very same shot, e.g. for `calibrate --raw-truth` experiments. Throws
+// crfcal::Error naming the file when there is none or it cannot be decoded.
+cv::Mat readRawThumbnail(const std::filesystem::path& path);
+
 // LibRaw's metadata only (no decoding): ISO, shutter, aperture, make, model; std::nullopt if LibRaw cannot open it.
 std::optional<ExifExposure> readRawExposure(const std::filesystem::path& path);
 
