@@ -1,6 +1,7 @@
 #include "crfcal/crf_fitter.hpp"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -82,6 +83,11 @@ void CrfFitOptions::check() const {
   if (!(edge_threshold >= 0)) throw InvalidInput("fit options: edge_threshold must be non-negative");
   if (level_bins < 4 || level_bins > 1024) throw InvalidInput("fit options: level_bins must be in [4, 1024]");
   if (position_bins < 1 || position_bins > 16) throw InvalidInput("fit options: position_bins must be in [1, 16]");
+  if (!(exponent_smoothness >= 0)) throw InvalidInput("fit options: exponent_smoothness must be >= 0");
+  if (!(shoulder_prior >= 0)) throw InvalidInput("fit options: shoulder_prior must be >= 0");
+  if (!(prior_energy_factor >= 1)) throw InvalidInput("fit options: prior_energy_factor must be >= 1");
+  if (!(min_local_exponent >= 0 && min_local_exponent < 1))
+    throw InvalidInput("fit options: min_local_exponent must be in [0, 1)");
   if (!(saturation_high > saturation_low)) throw InvalidInput("fit options: saturation_high must exceed saturation_low");
   if (ratio_rounds < 1) throw InvalidInput("fit options: ratio_rounds must be >= 1");
   if (max_evaluations < 10) throw InvalidInput("fit options: max_evaluations must be at least 10");
@@ -480,8 +486,44 @@ struct MomentSystem {
   std::vector<double> row_scale;  // √(ω/n) of each row
   std::vector<int> v0, v1;
   double weight = 0;     // Σ ω (normalisation of the energy)
+  // Extrapolation prior (CrfFitOptions::exponent_smoothness): rows √λ (g_{bc} − g_{ab}) for node triples (a, b, c)
+  // outside the covered levels, g_{ab} = (log φ_b − log φ_a) / (log x_b − log x_a) the local exponent.
+  std::vector<std::array<int, 3>> exponent_triples;
+  double exponent_weight = 0;
+  std::vector<char> exponent_upper;  // triple of the chain above the covered levels
+  double shoulder_weight = 0;        // replaces exponent_weight on upper triples where the exponent falls
+  // Lower bound (CrfFitOptions::min_local_exponent): rows kPenaltyScale · max(0, ε − g_ab) for consecutive nodes.
+  std::vector<std::array<int, 2>> exponent_pairs;
+  double min_exponent = 0;
   int levels() const { return static_cast<int>(h.cols()); }
 };
+
+// Node triples of the local-exponent penalty: nodes every (L−1)/64 levels, the chains from the first node up to the
+// lowest covered level and from the highest covered level up to 1 (one node inside the data links each chain to
+// the exponent the data show).
+std::vector<std::array<int, 3>> exponentTriples(int L, int covered_lo, int covered_hi) {
+  const double step = (L - 1) / 64.0;
+  std::vector<int> nodes;
+  for (int j = 1; j <= 64; ++j) nodes.push_back(static_cast<int>(std::lround(j * step)));
+  std::vector<std::array<int, 3>> triples;
+  const int n = static_cast<int>(nodes.size());
+  for (int j = 0; j + 2 < n; ++j) {
+    const int a = nodes[j], b = nodes[j + 1], c = nodes[j + 2];
+    // a triple belongs to a chain when at least one of its two intervals leaves the covered range
+    if (b <= covered_lo || b >= covered_hi || a < covered_lo - step || c > covered_hi + step)
+      if (a < covered_lo || c > covered_hi) triples.push_back({a, b, c});
+  }
+  return triples;
+}
+
+// Consecutive node pairs (every (L−1)/64 levels) for the local-exponent lower bound.
+std::vector<std::array<int, 2>> exponentPairs(int L) {
+  std::vector<std::array<int, 2>> pairs;
+  const double step = (L - 1) / 64.0;
+  for (int j = 1; j < 64; ++j)
+    pairs.push_back({static_cast<int>(std::lround(j * step)), static_cast<int>(std::lround((j + 1) * step))});
+  return pairs;
+}
 
 // fold: 0 or 1 for one half, -1 for both. omega: per-bin weight (applied to sums).
 MomentSystem makeSystem(const Moments& m, const Eigen::MatrixXd* debias_t, int fold, const Eigen::VectorXd& omega,
@@ -544,10 +586,20 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
   const int rows = static_cast<int>(sys.h.rows());
   const bool emor = curve.kind() == Curve::kEmor;
   const double norm = 1.0 / std::sqrt(std::max(sys.weight, 1e-300));
-  const int extra = emor ? kGrid - 1 : 0;
+  const int monotone_rows = emor ? kGrid - 1 : 0;
+  const int prior_rows = sys.exponent_weight > 0 ? static_cast<int>(sys.exponent_triples.size()) : 0;
+  const int bound_rows = sys.min_exponent > 0 ? static_cast<int>(sys.exponent_pairs.size()) : 0;
+  const int extra = monotone_rows + prior_rows + bound_rows;
+  const double prior_scale = std::sqrt(sys.exponent_weight);
+  auto logx = [L](int v) { return std::log(double(v) / (L - 1)); };
   ResidualFn fn = [&](const Eigen::VectorXd& p, Eigen::VectorXd& res, Eigen::MatrixXd* jac) {
     std::vector<double> f, jf;
+    std::vector<double> psc(prior_rows);
     if (!curve.values(p.data(), f, jac ? &jf : nullptr)) return false;
+    for (const auto& t : sys.exponent_triples)
+      if (prior_rows && !(f[t[0]] > 0)) return false;
+    for (const auto& t : sys.exponent_pairs)
+      if (bound_rows && !(f[t[0]] > 0)) return false;
     const double r = fit_ratio ? std::exp(p[d]) : r0;
     Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
     const Eigen::VectorXd hf = sys.h * fv, nf = sys.n * fv;
@@ -564,6 +616,19 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
       for (int i = 0; i + 1 < kGrid; ++i) res[rows + i] = kPenaltyScale * std::max(0.0, g[i] - g[i + 1] + 1e-7);
     } else if (!monotone(f)) {
       return false;
+    }
+    for (int i = 0; i < prior_rows; ++i) {
+      const auto& t = sys.exponent_triples[i];
+      const double g1 = (std::log(f[t[1]]) - std::log(f[t[0]])) / (logx(t[1]) - logx(t[0]));
+      const double g2 = (std::log(f[t[2]]) - std::log(f[t[1]])) / (logx(t[2]) - logx(t[1]));
+      psc[i] = sys.exponent_upper[i] && g2 < g1 ? std::sqrt(sys.shoulder_weight) : prior_scale;
+      res[rows + monotone_rows + i] = psc[i] * (g2 - g1);
+    }
+    const int bound_offset = rows + monotone_rows + prior_rows;
+    for (int i = 0; i < bound_rows; ++i) {
+      const auto& t = sys.exponent_pairs[i];
+      const double g = (std::log(f[t[1]]) - std::log(f[t[0]])) / (logx(t[1]) - logx(t[0]));
+      res[bound_offset + i] = kPenaltyScale * std::max(0.0, sys.min_exponent - g);
     }
     if (jac) {
       const int np = static_cast<int>(p.size());
@@ -582,6 +647,21 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
         for (int i = 0; i + 1 < kGrid; ++i)
           if (g[i] - g[i + 1] + 1e-7 > 0)
             for (int j = 0; j < d; ++j) (*jac)(rows + i, j) = kPenaltyScale * (jg[j * kGrid + i] - jg[j * kGrid + i + 1]);
+      for (int i = 0; i < prior_rows; ++i) {
+        const auto& t = sys.exponent_triples[i];
+        const double d1 = logx(t[1]) - logx(t[0]), d2 = logx(t[2]) - logx(t[1]);
+        for (int j = 0; j < d; ++j) {
+          const double l0 = jm(j, t[0]) / f[t[0]], l1 = jm(j, t[1]) / f[t[1]], l2 = jm(j, t[2]) / f[t[2]];
+          (*jac)(rows + monotone_rows + i, j) = psc[i] * ((l2 - l1) / d2 - (l1 - l0) / d1);
+        }
+      }
+      for (int i = 0; i < bound_rows; ++i) {
+        if (!(res[bound_offset + i] > 0)) continue;
+        const auto& t = sys.exponent_pairs[i];
+        const double d1 = logx(t[1]) - logx(t[0]);
+        for (int j = 0; j < d; ++j)
+          (*jac)(bound_offset + i, j) = -kPenaltyScale * (jm(j, t[1]) / f[t[1]] - jm(j, t[0]) / f[t[0]]) / d1;
+      }
     }
     return true;
   };
@@ -725,6 +805,38 @@ double momentEnergy(const MomentSystem& sys, const std::vector<double>& f, doubl
     e += raw[i] * raw[i] / (slope * slope);
   }
   return e / std::max(sys.weight, 1e-300);
+}
+
+// The extrapolation priors (local-exponent smoothness, shoulder) only break ties the data leave open (the affine
+// freedom at r = 1): fit without them, then with them from the same starts, and keep the regularised fit while its
+// data energy stays within `energy_factor` of the unregularised one (CrfFitOptions::prior_energy_factor).
+ModelFit fitModelMomentsWithPrior(const Curve& curve, const MomentSystem& sys, std::vector<std::vector<double>> starts,
+                                  double r0, bool fit_ratio, int max_iterations, double energy_factor) {
+  MomentSystem bare = sys;
+  bare.exponent_triples.clear();
+  bare.exponent_upper.clear();
+  bare.exponent_weight = 0;
+  ModelFit plain = fitModelMoments(curve, bare, starts, r0, fit_ratio, max_iterations);
+  if (sys.exponent_triples.empty() || sys.exponent_weight <= 0) return plain;
+  if (!plain.x.empty()) starts.push_back(plain.x);
+  ModelFit prior = fitModelMoments(curve, sys, starts, r0, fit_ratio, max_iterations);
+  prior.evaluations += plain.evaluations;
+  prior.iterations += plain.iterations;
+  plain.evaluations = prior.evaluations;
+  plain.iterations = prior.iterations;
+  auto dataEnergy = [&](const ModelFit& m) {
+    std::vector<double> f;
+    if (m.x.empty() || !curve.values(m.x.data(), f, nullptr)) return kInf;
+    const double e = momentEnergy(bare, f, m.ratio);
+    return std::isfinite(e) ? e : kInf;
+  };
+  const double e0 = dataEnergy(plain), e1 = dataEnergy(prior);
+  if (prior.valid && (!plain.valid || e1 <= energy_factor * e0)) {
+    prior.energy = e1;
+    return prior;
+  }
+  plain.energy = e0;
+  return plain;
 }
 
 // ---------------------------------------------------------------------------------------------------------
@@ -1024,14 +1136,38 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
     // Bin weights ω_k = 1: each residual is already divided by the secant slope of φ over the bin (the
     // intensity-domain residual of Eq. 21 to first order, MomentSystem), which makes the bins comparable.
     const Eigen::VectorXd omega = Eigen::VectorXd::Ones(bins);
+    // Levels covered by data (I's kernel masses and B's levels, 0.1 % tails dropped): outside them φ is the
+    // model's extrapolation, kept smooth by the local-exponent prior.
+    {
+      const Eigen::VectorXd mass = (moments.h[0] + moments.h[1] + moments.n[0] + moments.n[1]).colwise().sum().transpose();
+      const double total = mass.sum(), tail = 1e-3 * total;
+      double acc_lo = 0, acc_hi = 0;
+      int lo = 0, hi = L - 1;
+      while (lo < L - 1 && acc_lo + mass[lo] <= tail) acc_lo += mass[lo++];
+      while (hi > 0 && acc_hi + mass[hi] <= tail) acc_hi += mass[hi--];
+      result.covered_levels = {lo, hi};
+    }
+    auto setExtrapolationPrior = [&](MomentSystem& sys) {
+      if (options.min_local_exponent > 0) {
+        sys.exponent_pairs = exponentPairs(L);
+        sys.min_exponent = options.min_local_exponent;
+      }
+      if (!(options.exponent_smoothness > 0)) return;
+      sys.exponent_triples = exponentTriples(L, result.covered_levels.first, result.covered_levels.second);
+      sys.exponent_weight = options.exponent_smoothness;
+      sys.shoulder_weight = std::max(options.shoulder_prior, options.exponent_smoothness);
+      for (const auto& t : sys.exponent_triples) sys.exponent_upper.push_back(t[0] >= result.covered_levels.first);
+    };
     ModelFit fit_g, fit_e;
     double ratio = options.initial_ratio;
     const int lm_iterations = std::max(20, options.max_evaluations / 10);
     MomentSystem full;
     {
       full = makeSystem(moments, rt, -1, omega, K, bin_level_bin);
+      setExtrapolationPrior(full);
       if (want_emor || want_ggcm) {
-        fit_e = fitModelMoments(emor_curve, full, {}, ratio, options.fit_ratio, lm_iterations);
+        fit_e = fitModelMomentsWithPrior(emor_curve, full, {}, ratio, options.fit_ratio, lm_iterations,
+                                         options.prior_energy_factor);
         result.evaluations += fit_e.evaluations;
         result.iterations += fit_e.iterations;
       }
@@ -1076,7 +1212,8 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
           nm.valid = isValid(ggcm_curve.model(nm.x));
           fit_g = nm;
         } else {
-          fit_g = fitModelMoments(ggcm_curve, full, starts, r_start, options.fit_ratio, lm_iterations);
+          fit_g = fitModelMomentsWithPrior(ggcm_curve, full, starts, r_start, options.fit_ratio, lm_iterations,
+                                           options.prior_energy_factor);
         }
         result.evaluations += fit_g.evaluations;
         result.iterations += fit_g.iterations;
@@ -1117,10 +1254,12 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
     auto crossValidate = [&](const Curve& curve, const ModelFit& whole) {
       double total = 0;
       for (int fold = 0; fold < 2; ++fold) {
-        const MomentSystem train = makeSystem(moments, rt, fold, omega, K, bin_level_bin);
+        MomentSystem train = makeSystem(moments, rt, fold, omega, K, bin_level_bin);
+        setExtrapolationPrior(train);
         const MomentSystem test = makeSystem(moments, rt, 1 - fold, omega, K, bin_level_bin);
         if (train.h.rows() == 0 || test.h.rows() == 0) return std::numeric_limits<double>::quiet_NaN();
-        const ModelFit f = fitModelMoments(curve, train, {whole.x}, whole.ratio, options.fit_ratio, lm_iterations);
+        const ModelFit f = fitModelMomentsWithPrior(curve, train, {whole.x}, whole.ratio, options.fit_ratio,
+                                                   lm_iterations, options.prior_energy_factor);
         if (f.x.empty()) return kInf;
         std::vector<double> fv;
         if (!curve.values(f.x.data(), fv, nullptr)) return kInf;

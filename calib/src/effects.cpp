@@ -1020,6 +1020,22 @@ Coefficients coefficients(const Spec& spec, const ChannelFit& f, int self, int n
   return c;
 }
 
+// An extended model explains the residuals only with physical parameters: a positive, finite exposure scale, an
+// offset and a corner gain within the frame's range. A runaway fit (r → 10⁷, r < 0, an offset of 10⁶ full scales)
+// can lower the held-out error by a fluke of the linearisation, and must not be reported as the camera's.
+bool physical(const Spec& spec, const Evaluation& ev, int nc, int terms) {
+  for (int c = 0; c < nc; ++c) {
+    if (!ev.full[c].ok) continue;
+    if (!ev.full[c].theta.allFinite()) return false;
+    const Coefficients k = coefficients(spec, ev.full[c], c, nc, terms);
+    if (!(k.scale > 0 && std::isfinite(k.scale))) return false;
+    if (!(std::abs(k.offset) < 1)) return false;
+    const double corner = 1 + k.v1 + k.v2;
+    if (spec.vignetting && !(corner > 0.1 && corner < 10)) return false;
+  }
+  return true;
+}
+
 CrfFitResult averageFits(const std::vector<CrfFitResult>& fits) {
   CrfFitResult out = fits.front();
   std::vector<double> phi(kCurveSamples, 0.0);
@@ -1304,7 +1320,9 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
       e.gain = cmp.gain;
       e.statistic = cmp.z;
       e.parameters["phi_change"] = phi_change;
-      if (cmp.gain >= options.min_gain && cmp.z >= options.min_z && cmp.gain > best_gain) {
+      const bool plausible = physical(extend(current, name), ee, nc, terms);
+      if (!plausible) e.detail = "the extended model's parameters are not physical (runaway fit): not considered";
+      if (plausible && cmp.gain >= options.min_gain && cmp.z >= options.min_z && cmp.gain > best_gain) {
         best = name;
         best_gain = cmp.gain;
         best_eval = ee;
@@ -1466,7 +1484,9 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
       e.tested = true;
       e.gain = cmp.gain;
       e.statistic = cmp.z;
-      e.detected = cmp.gain >= options.min_gain && cmp.z >= options.min_z && std::abs(rel) > options.ratio_tolerance;
+      // a non-positive or non-finite scale is a runaway fit, not a ratio (see physical())
+      e.detected = a > 0 && std::isfinite(a) && cmp.gain >= options.min_gain && cmp.z >= options.min_z &&
+                   std::abs(rel) > options.ratio_tolerance;
       e.parameters = {{"fitted_ratio", a}, {"exif_ratio", in.exif_ratio}, {"relative_difference", rel},
                       {"tolerance", options.ratio_tolerance}};
       e.detail = fmt("fitted r %.4f vs EXIF %.4f (%+.1f%%; tolerance of nominal EXIF values ", a, in.exif_ratio,

@@ -364,6 +364,9 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
   if (!options.given_kernel.empty()) {
     K = normalizeKernel(options.given_kernel);
     result.kernel.kernel = K;
+    result.kernel.support = cv::countNonZero(K);
+    const cv::Moments m = cv::moments(K);  // centroid relative to the centre, as estimateKernel reports it
+    result.kernel.centroid = {m.m10 / m.m00 - K.cols / 2, m.m01 / m.m00 - K.rows / 2};
     result.kernel_estimated = false;
     refine(K);  // a given kernel cannot absorb a residual shift: the alignment must be right
   } else {

@@ -25,6 +25,7 @@
 // summed both ways).
 #include <functional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -70,6 +71,29 @@ struct CrfFitOptions {
   double edge_threshold = 0.02;         // moments: local range of B over the kernel support > this
   int level_bins = 64;                  // moments: bins of B's level
   int position_bins = 2;                // moments: bins of the local min and of the local max of B over the support
+  // moments: weight λ of the extrapolation prior λ Σ (g_{j+1} − g_j)², g_j = Δlog φ / Δlog x the local exponent
+  // between nodes j/64, on the nodes below and above the levels the data cover. With r = 1 the moments (and the
+  // seed's Eq. 22) determine φ on the covered levels only up to an affine map a + bφ (the mixture of a constant
+  // is the constant), so φ(0) = 0 and φ(1) = 1 — i.e. the offset and scale of the whole curve — rest on the model's
+  // extrapolation; the prior keeps the local gamma changing there the way the data show (zero for any x^γ) instead
+  // of a cliff. 0: off.
+  double exponent_smoothness = 1e-4;
+  // moments: weight replacing exponent_smoothness above the covered levels where the local exponent falls. A CRF
+  // compresses highlights (a shoulder: φ's exponent rises towards 1), it does not expand them, so a flattening φ
+  // above the data is the affine freedom at work, not the camera. Measured on `crfcal bench synthetic` (240
+  // cases, docs/RESULTS.md): 0 → 1e-1 lowers the mean φ RMSE at σ² = 0.001 from 0.0262 to 0.0252.
+  double shoulder_prior = 1e-1;
+  // moments: the two priors above only break ties the data leave open. φ is fitted without them and with them; the
+  // regularised fit is kept while its data energy is at most this factor times the unregularised one. Measured: on
+  // noisy pairs the affine-equivalent curves differ by factors 0.9–2.6 (noise and the model's systematic misfit);
+  // on exactly representable noise-free data the prior would cost a factor ~10⁴, so the exact fit is kept.
+  double prior_energy_factor = 2.0;
+  // moments: lower bound on the local exponent d log φ / d log x between nodes j/64, everywhere (a hinge penalty,
+  // zero above it). The affine freedom above lets a fit flatten φ to a + bφ_true with b → 0 (φ ≈ const ≈ 1 on the
+  // data, a cliff at 0) at no cost in energy; measured inverse CRFs are far from that (local exponent ≥ 0.56 on the
+  // ten Middlebury cameras, ≥ 1 for any gamma curve), so a bound of half the most concave measured one removes the
+  // degenerate solutions without touching real curves. 0: off.
+  double min_local_exponent = 0.25;
   double saturation_high = 254.5 / 255.0;  // B or I at/above: saturated (dilated by the kernel's support)
   double saturation_low = 0.5 / 255.0;     // B or I at/below: censored black (dilated likewise)
   int ratio_rounds = 6;        // seed: alternations φ-step / r-step (Eq. 25) at most
@@ -128,6 +152,7 @@ struct CrfFitResult {
   bool noise_sigma_estimated = false;
   int levels = 256;                 // level grid of the mixtures
   int moment_bins = 0;              // non-empty instrument bins (moments)
+  std::pair<int, int> covered_levels{0, 0};  // lowest/highest level of the data (moments; 0.1 % tails dropped)
   std::size_t mixture_nonzeros = 0;
   CrfObjective objective = CrfObjective::moments;
   CrfOptimizer optimizer = CrfOptimizer::levenberg_marquardt;
