@@ -491,7 +491,7 @@ struct MomentSystem {
   std::vector<std::array<int, 3>> exponent_triples;
   double exponent_weight = 0;
   std::vector<char> exponent_upper;  // triple of the chain above the covered levels
-  double shoulder_weight = 0;        // replaces exponent_weight on upper triples where the exponent falls
+  double shoulder_weight = 0;        // upper triples: weight where the exponent falls (a rise is free)
   // Lower bound (CrfFitOptions::min_local_exponent): rows kPenaltyScale · max(0, ε − g_ab) for consecutive nodes.
   std::vector<std::array<int, 2>> exponent_pairs;
   double min_exponent = 0;
@@ -621,7 +621,8 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
       const auto& t = sys.exponent_triples[i];
       const double g1 = (std::log(f[t[1]]) - std::log(f[t[0]])) / (logx(t[1]) - logx(t[0]));
       const double g2 = (std::log(f[t[2]]) - std::log(f[t[1]])) / (logx(t[2]) - logx(t[1]));
-      psc[i] = sys.exponent_upper[i] && g2 < g1 ? std::sqrt(sys.shoulder_weight) : prior_scale;
+      // above the data a rising exponent (a shoulder) is free, a falling one costs the shoulder weight
+      psc[i] = sys.exponent_upper[i] ? (g2 < g1 ? std::sqrt(sys.shoulder_weight) : 0.0) : prior_scale;
       res[rows + monotone_rows + i] = psc[i] * (g2 - g1);
     }
     const int bound_offset = rows + monotone_rows + prior_rows;
@@ -1155,7 +1156,7 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
       if (!(options.exponent_smoothness > 0)) return;
       sys.exponent_triples = exponentTriples(L, result.covered_levels.first, result.covered_levels.second);
       sys.exponent_weight = options.exponent_smoothness;
-      sys.shoulder_weight = std::max(options.shoulder_prior, options.exponent_smoothness);
+      sys.shoulder_weight = options.shoulder_prior;
       for (const auto& t : sys.exponent_triples) sys.exponent_upper.push_back(t[0] >= result.covered_levels.first);
     };
     ModelFit fit_g, fit_e;
