@@ -283,10 +283,18 @@ int runCalibrate(const CalibrateArgs& args) {
   if (pair.swapped) report.warnings.push_back("the first image is the blurred one (" + pair.blurred_reason + "); swapped");
   if (pair.sharp.linear)
     report.warnings.push_back("RAW pair: the data are linear (phi should be the identity; the fit checks it)");
+  for (const auto* shot : {&pair.sharp, &pair.blurred})
+    if (!shot->chroma_subsampling.empty() && shot->chroma_subsampling != "4:4:4" && shot->chroma_subsampling != "grey" &&
+        result.fits.size() > 1)
+      report.warnings.push_back(shot->path.string() + ": JPEG chroma subsampled " + shot->chroma_subsampling +
+                                ": R and B are rebuilt from chroma averaged across edges after the tone curve, so their "
+                                "curves are less reliable than G's (see docs/RESULTS.md#calibrate)");
   nlohmann::json& extra = report.extra;
   extra["input"] = {{"sharp", pair.sharp.path.string()},
                     {"blurred", pair.blurred.path.string()},
                     {"format", pair.sharp.format},
+                    {"chroma_subsampling", {{"sharp", pair.sharp.chroma_subsampling},
+                                            {"blurred", pair.blurred.chroma_subsampling}}},
                     {"linear", pair.sharp.linear},
                     {"blurred_reason", pair.blurred_reason},
                     {"camera", pair.sharp.exposure.camera()},

@@ -66,6 +66,10 @@ TEST(CalibrateCli, BundledPairWithKnownKernel) {
   EXPECT_FALSE(report["inverse_crf"].contains("R"));
   EXPECT_NEAR(report["exposure_ratio"]["exif"].get<double>(), 1.0375, 0.01);
   EXPECT_TRUE(report["effects"].is_array());
+  // OpenCV wrote the pair with 4:2:0 chroma: recorded; no warning about R and B when only G is fitted.
+  EXPECT_EQ(report["input"]["chroma_subsampling"]["sharp"].get<std::string>(), "4:2:0");
+  EXPECT_EQ(report["input"]["chroma_subsampling"]["blurred"].get<std::string>(), "4:2:0");
+  for (const auto& w : report["warnings"]) EXPECT_EQ(w.get<std::string>().find("chroma"), std::string::npos) << w;
 }
 
 // The main job end to end on the bundled semi-real pair (real photo, measured curve, Levin kernel, handheld shift
@@ -329,6 +333,9 @@ TEST(CalibrateCli, RawTruthOfTheSharpShotIsReportedAndCompared) {
   const auto& truth = report["raw_truth"];
   EXPECT_EQ(truth["file"].get<std::string>(), p.sharp_linear.string());
   EXPECT_EQ(truth["shot"].get<std::string>(), "sharp");  // the linear PNG has no EXIF: the default
+  bool chroma_warning = false;  // OpenCV's JPEGs are 4:2:0: R and B are flagged
+  for (const auto& w : report["warnings"]) chroma_warning |= w.get<std::string>().find("chroma subsampled 4:2:0") != std::string::npos;
+  EXPECT_TRUE(chroma_warning) << report["warnings"].dump();
   EXPECT_FALSE(truth["camera_raw"].get<bool>());
   for (const char* c : {"R", "G", "B"}) {
     const auto phi = truth["inverse_crf"][c].get<std::vector<double>>();

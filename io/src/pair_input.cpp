@@ -9,6 +9,7 @@
 #include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/exif.hpp"
+#include "crfcal/io/jpeg_info.hpp"
 #include "crfcal/io/image_io.hpp"
 
 namespace crfcal::io {
@@ -64,6 +65,7 @@ LoadedImage loadImage(const fs::path& path, const RawDecodeOptions& raw_options)
     if (loaded.image.depth() == CV_32F) throw Error("floating-point images are not supported (8 or 16 bit)", path.string());
     if (loaded.image.channels() == 4) cv::cvtColor(loaded.image, loaded.image, cv::COLOR_BGRA2BGR);
     loaded.exposure = readExif(path);
+    if (loaded.format == "jpeg") loaded.chroma_subsampling = readJpegInfo(path).subsampling;
   }
   loaded.sharpness = normalisedGradientEnergy(loaded.image);
   return loaded;

@@ -22,6 +22,7 @@ struct LoadedImage {
   double black_level = 0, white_level = 0;  // RAW only
   ExifExposure exposure;
   double sharpness = 0;   // normalised gradient energy
+  std::string chroma_subsampling;  // JPEG: "4:2:0", "4:4:4", … (jpeg_info.hpp); empty for other formats
 };
 
 // Reads one image (RAW decoded linearly). Throws crfcal::Error naming the file.
