@@ -86,7 +86,7 @@ struct EffectOptions {
   int phi_terms = 4;             // every model (base too) re-fits φ by this many EMoR basis curves
   bool test_spatial_blur = true; // first-order kernel test (only when the pipeline estimated the kernel)
   bool refit = true;             // refit φ with the extended model when an effect is detected
-  int refit_rounds = 3;          // correct → refit → re-estimate rounds (after one per selected effect in the search)
+  int refit_rounds = 3;          // correct → refit → re-estimate rounds, final and after each effect the search selects (until φ moves < 5e-4)
   void check() const;            // throws InvalidInput
 };
 
