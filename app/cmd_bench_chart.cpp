@@ -6,7 +6,7 @@
 //     exponent_smoothness). Nothing here comes from ../shared: this is what chooses the default weight.
 //  2. With the Middlebury data (--data, $CRFCAL_SHARED_DATA or ../shared/data; skipped when absent): the ten
 //     cameras' JPEG chart shots calibrated from the reflectances vs the RAW→JPEG truth — the evidence table of
-//     docs/results-parts/chart.md, the same numbers as `crfcal chart … --truth`.
+//     docs/RESULTS.md#chart, the same numbers as `crfcal chart … --truth`.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>

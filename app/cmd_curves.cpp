@@ -27,7 +27,7 @@ struct CurvesArgs {
   double smoothness = 0.01;
   // The bundled samples/camera_curves tables (used by the synthetic benchmark) were fitted without the
   // local-exponent penalty; 0 keeps this command reproducing them. `crfcal chart` uses 1e-4 (see
-  // ScaledFitOptions::exponent_smoothness and docs/results-parts/chart.md for the difference).
+  // ScaledFitOptions::exponent_smoothness and docs/RESULTS.md#chart for the difference).
   double exponent_smoothness = 0;
   bool quiet = false;
 };

@@ -1,5 +1,5 @@
 // crfcal export: a report's response curve as a lookup table for other tools (OpenCV, OCIO, Resolve, pfstools,
-// Hugin, spreadsheets). Formats and their readers: crfcal/io/lut_export.hpp, docs/results-parts/export.md.
+// Hugin, spreadsheets). Formats and their readers: crfcal/io/lut_export.hpp, docs/RESULTS.md#lut-export.
 #include <cstdio>
 #include <memory>
 

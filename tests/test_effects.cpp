@@ -2,7 +2,7 @@
 // (Levin et al., grey; the bundled window photo for colour) through a real camera curve and a real kernel, one
 // effect planted at a seeded random strength in [threshold, 2·threshold]; calibratePair must name that effect and
 // no other, and report a φ within the clean-case accuracy (the same pair without the effect, + 0.005 RMSE).
-// Detection and false-alarm RATES are measured by `crfcal bench effects` (docs/results-parts/effects.md).
+// Detection and false-alarm RATES are measured by `crfcal bench effects` (docs/RESULTS.md#effects).
 #include <algorithm>
 #include <random>
 
@@ -191,7 +191,7 @@ TEST(Effects, BlackLevelOffsetIsFound) {
 }
 
 // One configuration without a companion: after the mix is corrected a small offset-like remainder still fires
-// black_level_offset in many colour cases (the companion rate is measured by the bench, effects.md).
+// black_level_offset in many colour cases (the companion rate is measured by the bench, docs/RESULTS.md#effects).
 TEST(Effects, ChannelMixingIsFound) {
   cv::Mat window = io::readImage(samples() / "effects" / "window.jpg");
   cv::resize(window, window, cv::Size(), 0.5, 0.5, cv::INTER_AREA);  // 320×240: colour edges, a few seconds

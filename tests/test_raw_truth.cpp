@@ -40,7 +40,7 @@ RawTruthOptions greenOnly() {
 // medians of all 8 shots (samples/camera_curves/PROVENANCE.md): same camera, independent method. Over the range
 // both cover, the shapes agree within 0.01 RMSE (scale-aligned; measured 0.0013–0.0058 on the four shots). The
 // normalisation φ(1) = 1 of a single shot rests on the EMoR extrapolation above its brightest flat level, so the
-// plain RMSE over the covered range is looser (measured 0.011–0.039; docs/results-parts/raw_truth.md).
+// plain RMSE over the covered range is looser (measured 0.011–0.039; docs/RESULTS.md#raw-truth).
 TEST(RawTruth, MiddleburyShotsMatchTheBundledCameraCurve) {
   const std::vector<double> table = io::readCurveTable(test::samples() / "camera_curves" / (std::string(kCamera) + ".csv"));
   for (const char* shot : {"wb1i1e1", "wb1i1e2", "wb1i1e3", "wb1i1e4"}) {

@@ -334,7 +334,7 @@ TEST(TheoryTheorem1, UpperBoundHoldsForAnyMonotoneCurve) {
     }
     std::printf("%-20s convex=%d  worst min Gamma %+.3e\n", c.name.c_str(), curve.isConvex() ? 1 : 0, min_gamma);
     if (c.name == "emor-mean") {
-      // Not convex (toe and shoulder): the lower bound may fail, but only slightly (measured −3.9e-3, see docs/results-parts/theory.md).
+      // Not convex (toe and shoulder): the lower bound may fail, but only slightly (measured −3.9e-3, see docs/RESULTS.md#theory).
       EXPECT_GT(min_gamma, -0.01);
     }
   }

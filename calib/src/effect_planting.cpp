@@ -14,7 +14,7 @@
 
 namespace crfcal {
 
-// The thresholds (`crfcal bench effects --sweep`, docs/results-parts/effects.md): for the effects that bias φ when
+// The thresholds (`crfcal bench effects --sweep`, docs/RESULTS.md#effects): for the effects that bias φ when
 // ignored, the strength at which the seed model's φ (effects off) is worse than its clean twin's by 0.01 RMSE
 // (median; 2.5 of 255, the size of the clean-case error itself). The others do not bias φ and are stated by the
 // physical tolerance they exceed.

@@ -54,7 +54,7 @@ struct ScaledFitOptions {
   // the whole curve, and leaves the fit inside the data to the data. 1e-4: on synthetic charts with known curves
   // (`crfcal bench chart`) it lowers the mean full-range φ error by 16–24 % and the RAW-reference worst case from
   // 0.20 to 0.12 at unchanged shape error; it costs on film-like shoulders; 1e-3 bends them further
-  // (docs/results-parts/chart.md).
+  // (docs/RESULTS.md#chart).
   double exponent_smoothness = 1e-4;
   void check() const;
 };

@@ -28,7 +28,7 @@ struct PatchReference {
 // The 24 reference patches in chart order.
 const std::array<PatchReference, kPatches>& reference();
 
-// Which published values serve as the linear reference for a camera channel (documented in docs/results-parts/chart.md).
+// Which published values serve as the linear reference for a camera channel (documented in docs/RESULTS.md#chart).
 enum class ReferenceSet {
   Neutral,     // the six grey patches, reference = Y for every channel (camera-independent: a grey reflects
                // the same fraction in every band, so only the per-shot scale is unknown)

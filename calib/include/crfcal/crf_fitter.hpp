@@ -66,13 +66,13 @@ struct CrfFitOptions {
   // moments: continuously-updated GMM — every bin sum divided by its model standard deviation at the current φ
   // (I's noise through the transition matrix + quantisation), so the squared noise adds a φ-independent constant;
   // fitted from the least-squares solution; then GGCM vs EMoR by the lower CUE energy (equal parameter counts).
-  bool variance_correction = false;  // measured worse (docs/results-parts/synthetic.md); ablation only
+  bool variance_correction = false;  // measured worse (docs/RESULTS.md#synthetic-benchmark); ablation only
   double debias_regularization = 1e-4;  // λ of the deconvolution (noise_debias.hpp)
   double edge_threshold = 0.02;         // moments: local range of B over the kernel support > this
   int level_bins = 64;                  // moments: bins of B's level
   int position_bins = 2;                // moments: bins of the local min and of the local max of B over the support
   // moments: weight λ of the extrapolation prior λ Σ (g_{j+1} − g_j)², g_j = Δlog φ / Δlog x the local exponent
-  // between nodes j/64, on the nodes below and above the levels the data cover. With r = 1 the moments (and the
+  // between nodes j/64, on the nodes below the levels the data cover (above them: shoulder_prior). With r = 1 the moments (and the
   // seed's Eq. 22) determine φ on the covered levels only up to an affine map a + bφ (the mixture of a constant
   // is the constant), so φ(0) = 0 and φ(1) = 1 — i.e. the offset and scale of the whole curve — rest on the model's
   // extrapolation; the prior keeps the local gamma changing there the way the data show (zero for any x^γ) instead
@@ -81,7 +81,7 @@ struct CrfFitOptions {
   // moments: above the covered levels the smoothness weight is replaced by this one where the local exponent falls,
   // and by 0 where it rises. Real CRFs compress highlights (a shoulder: φ's local exponent rises towards x = 1, up to
   // 4.5–19 on the ten Middlebury cameras) — a rise must stay free; a flattening φ above the data is the affine
-  // freedom at work, not the camera. Measured (docs/RESULTS.md): `bench synthetic` 0.0285/0.0308/0.0291 (no priors)
+  // freedom at work, not the camera. Measured (docs/RESULTS.md#synthetic-benchmark): `bench synthetic` 0.0285/0.0308/0.0291 (no priors)
   // → 0.0272/0.0305/0.0291; `bench pairs` stays ≤ 0.02 (a symmetric smoothness above the data raised it to 0.0217).
   double shoulder_prior = 1e-1;
   // moments: the two priors above only break ties the data leave open. φ is fitted without them and with them; the

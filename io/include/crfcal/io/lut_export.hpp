@@ -2,7 +2,7 @@
 // Writers that hand a measured response to other tools (one concept: "the curve as a lookup table in someone
 // else's format"). Every file is written atomically (crfcal::io::writeAtomically).
 //
-// Formats (see docs/results-parts/export.md for the reader of each and how the tests load them back):
+// Formats (see docs/RESULTS.md#lut-export for the reader of each and how the tests load them back):
 //   csv       x,R,G,B — N rows, x the LUT input (intensity for φ, irradiance for ψ), values %.9g.
 //   opencv    cv::FileStorage (YAML, or XML/JSON by the file's extension): key "response" = 256×1 CV_32FC3,
 //             BGR, pixel value → relative irradiance (what cv::MergeDebevec/MergeRobertson::process take and
