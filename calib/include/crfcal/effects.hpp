@@ -35,8 +35,9 @@
 // residual variance and A the residuals' design effect (the variance inflation of 32×32 block sums: spatially
 // correlated or systematically misfit residuals make the test conservative). Clipping acts locally: its drop is
 // taken over the 16×16 blocks that contain plateau samples (chosen from B alone). Effects are added greedily
-// (largest significant gain first); after each, the pair is corrected with the grown model, φ refitted and the
-// remaining effects re-tested around it, so one planted effect does not make its confounders fire.
+// (largest significant gain first); after each, the pair is corrected with the grown model, φ refitted until it
+// settles and the remaining effects re-tested around it, so one planted effect does not make its confounders fire.
+// A backward pass then drops any selected effect that no longer passes the same test inside the final model.
 // exposure_ratio_mismatch in addition needs |a / r_EXIF − 1| > ratio_tolerance (nominal EXIF times, ISOs and
 // f-numbers are rounded to 1/3 stop: up to ≈ 6 % each).
 // signal_dependent_noise is tested on I itself (its noise is what the seed models; in the residuals above it is
