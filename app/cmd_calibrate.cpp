@@ -283,12 +283,20 @@ int runCalibrate(const CalibrateArgs& args) {
   if (pair.swapped) report.warnings.push_back("the first image is the blurred one (" + pair.blurred_reason + "); swapped");
   if (pair.sharp.linear)
     report.warnings.push_back("RAW pair: the data are linear (phi should be the identity; the fit checks it)");
-  for (const auto* shot : {&pair.sharp, &pair.blurred})
-    if (!shot->chroma_subsampling.empty() && shot->chroma_subsampling != "4:4:4" && shot->chroma_subsampling != "grey" &&
-        result.fits.size() > 1)
-      report.warnings.push_back(shot->path.string() + ": JPEG chroma subsampled " + shot->chroma_subsampling +
-                                ": R and B are rebuilt from chroma averaged across edges after the tone curve, so their "
-                                "curves are less reliable than G's (see docs/RESULTS.md#calibrate)");
+  {
+    // One warning naming every chroma-subsampled shot (only when R and B are fitted: G is carried by luma).
+    std::vector<std::string> subsampled;
+    for (const auto* shot : {&pair.sharp, &pair.blurred})
+      if (!shot->chroma_subsampling.empty() && shot->chroma_subsampling != "4:4:4" && shot->chroma_subsampling != "grey")
+        subsampled.push_back(shot->path.string() + " (" + shot->chroma_subsampling + ")");
+    if (!subsampled.empty() && result.fits.size() > 1) {
+      std::string files = subsampled.front();
+      if (subsampled.size() > 1) files += " and " + subsampled.back();
+      report.warnings.push_back(files + ": JPEG chroma subsampled: R and B are rebuilt from chroma averaged across "
+                                "edges after the tone curve, so their curves are less reliable than G's (see "
+                                "docs/RESULTS.md#calibrate)");
+    }
+  }
   nlohmann::json& extra = report.extra;
   extra["input"] = {{"sharp", pair.sharp.path.string()},
                     {"blurred", pair.blurred.path.string()},

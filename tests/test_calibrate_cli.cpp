@@ -334,7 +334,7 @@ TEST(CalibrateCli, RawTruthOfTheSharpShotIsReportedAndCompared) {
   EXPECT_EQ(truth["file"].get<std::string>(), p.sharp_linear.string());
   EXPECT_EQ(truth["shot"].get<std::string>(), "sharp");  // the linear PNG has no EXIF: the default
   bool chroma_warning = false;  // OpenCV's JPEGs are 4:2:0: R and B are flagged
-  for (const auto& w : report["warnings"]) chroma_warning |= w.get<std::string>().find("chroma subsampled 4:2:0") != std::string::npos;
+  for (const auto& w : report["warnings"]) chroma_warning |= w.get<std::string>().find("(4:2:0): JPEG chroma subsampled") != std::string::npos;
   EXPECT_TRUE(chroma_warning) << report["warnings"].dump();
   EXPECT_FALSE(truth["camera_raw"].get<bool>());
   for (const char* c : {"R", "G", "B"}) {
