@@ -14,10 +14,12 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <mutex>
 #include <random>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
@@ -50,6 +52,7 @@ struct EffectsArgs {
   bool sweep = false;
   std::vector<double> factors{0.25, 0.5, 1.0, 2.0};
   bool verbose = false;
+  int threads = 2;  // cases in parallel (each case also uses OpenCV's own parallel loops; TBB nests them)
 };
 
 struct CaseResult {
@@ -263,18 +266,29 @@ int runEffects(const EffectsArgs& args) {
     if (!isClean(e)) plantingThreshold(e);  // unknown names: one-line error
   }
   if (args.sweep) return runSweep(src, args, effects);
-  std::vector<CaseResult> results;
-  for (const auto& effect : effects) {
-    for (int seed = 1; seed <= args.seeds; ++seed) {
+  // Every (effect, seed) case is independent: run them `threads` at a time; the table is built from the results in
+  // case order, so it does not depend on the thread count (the progress lines come in completion order).
+  std::vector<std::pair<std::string, int>> cases;
+  for (const auto& effect : effects)
+    for (int seed = 1; seed <= args.seeds; ++seed) cases.emplace_back(effect, seed);
+  std::vector<CaseResult> results(cases.size());
+  std::mutex print;
+  const int threads = std::max(1, std::min(args.threads, static_cast<int>(cases.size())));
+  cv::parallel_for_(cv::Range(0, static_cast<int>(cases.size())), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      const auto& [effect, seed] = cases[static_cast<std::size_t>(i)];
       const CaseResult r = runCase(src, args, effect, seed, 0, true);
       std::string names;
       for (const auto& d : r.detected) names += (names.empty() ? "" : ",") + d;
-      std::fprintf(stderr, "%-24s seed %3d strength %.4g: detected [%s] %s rmse %.4f (base %.4f, clean twin %.4f) %.1f s%s\n",
-                   effect.c_str(), seed, r.strength, names.c_str(), r.exact ? "OK" : "WRONG", r.rmse, r.rmse_base,
-                   r.rmse_clean, r.seconds, r.error.empty() ? "" : (" error: " + r.error).c_str());
-      results.push_back(r);
+      {
+        const std::lock_guard<std::mutex> lock(print);
+        std::fprintf(stderr, "%-24s seed %3d strength %.4g: detected [%s] %s rmse %.4f (base %.4f, clean twin %.4f) %.1f s%s\n",
+                     effect.c_str(), seed, r.strength, names.c_str(), r.exact ? "OK" : "WRONG", r.rmse, r.rmse_base,
+                     r.rmse_clean, r.seconds, r.error.empty() ? "" : (" error: " + r.error).c_str());
+      }
+      results[static_cast<std::size_t>(i)] = r;
     }
-  }
+  }, threads > 1 ? static_cast<double>(cases.size()) : 1.0);
   std::ostringstream table;
   table << "| planted effect | strength range | cases | detected (right name) | exactly right (no other) | "
            "false names | phi ok (<= twin + 0.005) | phi_G RMSE median: reported | base | clean twin | s/case |\n"
@@ -341,6 +355,7 @@ const BenchRegistration registration(
       command.add_option("--factors", args->factors, "--sweep: strengths as multiples of the threshold");
       command.add_option("--json", args->json, "Write the per-case results here");
       command.add_flag("-v,--verbose", args->verbose, "Print every case's effect table");
+      command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::PositiveNumber);
       return [args] { return runEffects(*args); };
     });
 
