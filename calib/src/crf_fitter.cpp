@@ -596,10 +596,13 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
     std::vector<double> f, jf;
     std::vector<double> psc(prior_rows);
     if (!curve.values(p.data(), f, jac ? &jf : nullptr)) return false;
-    for (const auto& t : sys.exponent_triples)
-      if (prior_rows && !(f[t[0]] > 0)) return false;
-    for (const auto& t : sys.exponent_pairs)
-      if (bound_rows && !(f[t[0]] > 0)) return false;
+    // the local exponents need log φ at every node they use (the first node of a chain is its smallest)
+    if (prior_rows)
+      for (const auto& t : sys.exponent_triples)
+        if (!(f[t[0]] > 0)) return false;
+    if (bound_rows)
+      for (const auto& t : sys.exponent_pairs)
+        if (!(f[t[0]] > 0)) return false;
     const double r = fit_ratio ? std::exp(p[d]) : r0;
     Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
     const Eigen::VectorXd hf = sys.h * fv, nf = sys.n * fv;
