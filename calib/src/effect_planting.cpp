@@ -37,7 +37,8 @@ std::string thresholdReason(const std::string& effect) {
   if (effect == "channel_mixing") return "10 % of the other channels mixed in: phi_G biased by 0.01 RMSE when ignored";
   if (effect == "signal_dependent_noise")
     return "noise variance 3x larger at level 0.1 than at 0.9: homoscedastic weights keep at most 75 % efficiency "
-           "(Kantorovich 4k/(1+k)^2); phi is not biased (the moments estimator is unbiased for any noise law)";
+           "(Kantorovich 4k/(1+k)^2); phi is not biased by the noise law (pixels are selected by B alone; the Jensen bias of phi(I) is that of "
+           "homoscedastic noise of the same power)";
   if (effect == "clipping")
     return "1.25 % of the informative pixels on a plateau below full scale: phi biased by 0.007 (twin with the same "
            "measurable range) to 0.01 RMSE when ignored";

@@ -1572,8 +1572,8 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
                  fmt("to %.1f/255 (level %.2f); variance contrast %.2f", 255 * sg.back(), lv.back(), nt.contrast);
       if (noise_detected)
         e.detail += in.fit.noise == NoiseHandling::none
-                        ? "; phi from the base fit (noise handling none: the moments estimator is unbiased for any "
-                          "noise law, sigma(v) only weighs)"
+                        ? "; phi from the base fit (noise handling none: pixels are selected by B alone, so sigma(v) "
+                          "would only change the weights)"
                         : "; sigma(v) handed to the refit (noise_sigma_per_level)";
     }
   }

@@ -57,8 +57,9 @@
 // model's r starts the fitter) and φ is refitted (fitInverseCrf, same options), `refit_rounds` times (parameters
 // and φ_ext re-estimated with each refitted φ). With only exposure_ratio_mismatch, φ is refitted from the
 // diagnostics' r when the fitter's own r differs by > 2 % (a wrong EXIF start can trap it); signal_dependent_noise
-// keeps the fitted φ when the fitter uses no σ (noise handling none: the moments estimator is unbiased whatever
-// the noise law) — the entry says so.
+// keeps the fitted φ when the fitter uses no σ (noise handling none: the pixels are selected by B alone, so the
+// noise law only changes the weights; what remains is the second-order Jensen bias of φ(I), as for homoscedastic
+// noise of the same power) — the entry says so.
 #include <map>
 #include <string>
 #include <vector>
