@@ -23,6 +23,7 @@
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/pair_input.hpp"
 #include "crfcal/io/response_io.hpp"
+#include "crfcal/kernel.hpp"
 #include "crfcal/pair_calibration.hpp"
 #include "progress.hpp"
 
@@ -53,17 +54,6 @@ const char* kDefaultPhotos[] = {"brackets/nikon_e995_window/HDRI_Sample_Scene_Wi
                                 "brackets/canon_s3is_stlouisarch/StLouisArchMultExpEV+1.51.jpeg"};
 // Measured green-channel curves bundled in samples/camera_curves (RAW-vs-JPEG fits of real cameras).
 const char* kDefaultCurves[] = {"NikonD70", "CanonPowerShotG9", "SonyDSLR-A100"};
-
-cv::Point2d centroid(const cv::Mat& K) {
-  cv::Point2d c;
-  const double total = cv::sum(K)[0];
-  for (int y = 0; y < K.rows; ++y)
-    for (int x = 0; x < K.cols; ++x) {
-      c.x += K.at<double>(y, x) * (x - K.cols / 2);
-      c.y += K.at<double>(y, x) * (y - K.rows / 2);
-    }
-  return c / std::max(total, 1e-300);
-}
 
 // Largest corner distance between the estimated and the true homography (sharp → blurred), after removing the
 // translation the kernel absorbed: with B(Hp) = (I ⊗ K_e)(p) and B(Ap) = (I ⊗ K)(p), H = A ∘ T(c_K − c_e).
@@ -177,7 +167,7 @@ int runPairs(const PairsArgs& args) {
             const double base = r.base_fits.count("G") ? curveRmse(r.base_fits.at("G").inverse_crf, sampleInverse(truth)) : rmse;
             const double kerr = kernelShapeError(r.kernel.kernel, kernel);
             const double cerr = cornerError(r.registration.homography, pair.homography, photo.size(),
-                                            centroid(kernel) - r.kernel.centroid);
+                                            kernelCentroid(kernel) - r.kernel.centroid);
             // Both kernels on the same canvas and scale (the estimate's window), for a side-by-side look.
             const int side = std::max({r.kernel.kernel.rows, kernel.rows, kernel.cols}) | 1;
             cv::Mat true_padded = cv::Mat::zeros(side, side, CV_64F);

@@ -3,6 +3,7 @@
 #include <limits>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 
 #include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
@@ -82,6 +83,22 @@ TEST(KernelValidation, BoxKernel) {
   EXPECT_EQ(box.cols, 20);
   EXPECT_NEAR(cv::sum(box)[0], 1.0, 1e-15);
   EXPECT_THROW(boxKernel(0), InvalidInput);
+}
+
+TEST(KernelValidation, CentroidIsTheShiftTheKernelApplies) {
+  cv::Mat k(7, 9, CV_64F, cv::Scalar(0));
+  k.at<double>(3, 4) = 0.5;  // the centre
+  k.at<double>(5, 8) = 0.5;  // 2 rows down, 4 columns right
+  const cv::Point2d c = kernelCentroid(k);
+  EXPECT_NEAR(c.x, 2.0, 1e-12);
+  EXPECT_NEAR(c.y, 1.0, 1e-12);
+  // convolving a delta moves it by the centroid
+  cv::Mat delta(31, 31, CV_64F, cv::Scalar(0));
+  delta.at<double>(15, 15) = 1.0;
+  const cv::Moments m = cv::moments(convolve(delta, k));
+  EXPECT_NEAR(m.m10 / m.m00 - 15, c.x, 1e-9);
+  EXPECT_NEAR(m.m01 / m.m00 - 15, c.y, 1e-9);
+  EXPECT_EQ(kernelCentroid(cv::Mat::zeros(3, 3, CV_64F)), cv::Point2d(0, 0));
 }
 
 TEST(BlurModel, DeltaConvolvedWithAsymmetricKernelReproducesKernelCentred) {

@@ -64,4 +64,12 @@ cv::Mat kernelSupport(const cv::Mat& kernel) {
   return k > 0;
 }
 
+cv::Point2d kernelCentroid(const cv::Mat& kernel) {
+  cv::Mat k;
+  kernel.convertTo(k, CV_64F);
+  const cv::Moments m = cv::moments(k);
+  if (!(m.m00 > 0)) return {0, 0};
+  return {m.m10 / m.m00 - k.cols / 2, m.m01 / m.m00 - k.rows / 2};
+}
+
 }  // namespace crfcal

@@ -13,6 +13,7 @@
 
 #include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/kernel.hpp"
 
 namespace crfcal {
 namespace {
@@ -412,12 +413,7 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
   result.border_mass = borderMass(K);
   result.hit_size_limit = result.border_mass > options.border_limit;
   result.support = cv::countNonZero(K);
-  const int r = K.rows / 2;
-  for (int y = 0; y < K.rows; ++y)
-    for (int x = 0; x < K.cols; ++x) {
-      result.centroid.x += K.at<double>(y, x) * (x - r);
-      result.centroid.y += K.at<double>(y, x) * (y - r);
-    }
+  result.centroid = kernelCentroid(K);
   if (options.progress) options.progress(1.0, "kernel");
   if (result.hit_size_limit && options.throw_on_size_limit) {
     char buffer[300];

@@ -70,17 +70,6 @@ cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::M
   return out;
 }
 
-cv::Point2d kernelCentroid(const cv::Mat& K) {
-  cv::Point2d c;
-  const double total = cv::sum(K)[0];
-  for (int y = 0; y < K.rows; ++y)
-    for (int x = 0; x < K.cols; ++x) {
-      c.x += K.at<double>(y, x) * (x - K.cols / 2);
-      c.y += K.at<double>(y, x) * (y - K.rows / 2);
-    }
-  return total > 0 ? c / total : c;
-}
-
 cv::Mat dilateBy(const cv::Mat& mask, int n) {
   cv::Mat out;
   cv::dilate(mask, out, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(n, n)));
@@ -365,8 +354,7 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
     K = normalizeKernel(options.given_kernel);
     result.kernel.kernel = K;
     result.kernel.support = cv::countNonZero(K);
-    const cv::Moments m = cv::moments(K);  // centroid relative to the centre, as estimateKernel reports it
-    result.kernel.centroid = {m.m10 / m.m00 - K.cols / 2, m.m01 / m.m00 - K.rows / 2};
+    result.kernel.centroid = kernelCentroid(K);
     result.kernel_estimated = false;
     refine(K);  // a given kernel cannot absorb a residual shift: the alignment must be right
   } else {

@@ -8,6 +8,7 @@
 
 #include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/kernel.hpp"
 #include "crfcal/kernel_estimation.hpp"
 
 namespace crfcal {
@@ -64,13 +65,7 @@ KernelDisagreement kernelDisagreement(const std::vector<cv::Mat>& tile_kernels, 
     const double e = kernelRelativeError(k, combined);
     d.mean_relative += e / std::max(1, d.tiles);
     d.max_relative = std::max(d.max_relative, e);
-    cv::Point2d c;
-    for (int y = 0; y < k.rows; ++y)
-      for (int x = 0; x < k.cols; ++x) {
-        c.x += k.at<double>(y, x) * (x - k.cols / 2);
-        c.y += k.at<double>(y, x) * (y - k.rows / 2);
-      }
-    centroids.push_back(c);
+    centroids.push_back(kernelCentroid(k));
   }
   for (size_t i = 0; i < centroids.size(); ++i)
     for (size_t j = i + 1; j < centroids.size(); ++j)

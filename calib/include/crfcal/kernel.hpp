@@ -31,4 +31,8 @@ cv::Mat cropKernel(const cv::Mat& kernel, double threshold = 0.0);
 // Mask (CV_8U, 255 where K > 0) of the kernel's support: the neighbourhood whose pixels enter (I ⊗ K)(p).
 cv::Mat kernelSupport(const cv::Mat& kernel);
 
+// The kernel's mass centroid relative to its centre (cols/2, rows/2), pixels: the shift the kernel applies.
+// (0, 0) for a kernel without mass.
+cv::Point2d kernelCentroid(const cv::Mat& kernel);
+
 }  // namespace crfcal
