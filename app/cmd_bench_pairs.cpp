@@ -18,6 +18,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/handheld_simulation.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/datasets.hpp"
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/kernel_io.hpp"
@@ -76,13 +77,9 @@ std::string shortName(const std::string& spec) {
 int runPairs(const PairsArgs& args) {
   std::vector<std::string> images = args.images;
   if (images.empty()) {
-    std::string data = args.data;
-    if (data.empty()) {
-      const char* env = std::getenv("CRFCAL_SHARED_DATA");
-      data = env ? env : "../shared/data";
-    }
+    const fs::path data = io::defaultSharedData(args.data);
     for (const char* p : kDefaultPhotos) {
-      const fs::path path = fs::path(data) / p;
+      const fs::path path = data / p;
       if (!fs::exists(path))
         throw Error("default photo not found (give --image or --data / CRFCAL_SHARED_DATA)", path.string());
       images.push_back(path.string());
