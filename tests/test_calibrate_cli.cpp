@@ -52,7 +52,7 @@ double rmse(const std::vector<double>& a, const std::vector<double>& b) {
 }
 
 TEST(CalibrateCli, BundledPairWithKnownKernel) {
-  if (!fs::exists(pairDir() / "sharp.jpg")) GTEST_SKIP();
+  ASSERT_TRUE(fs::exists(pairDir() / "sharp.jpg")) << "bundled pair missing";
   test::TempDir dir;
   const auto r = test::run(bin() + " calibrate -q " + (pairDir() / "sharp.jpg").string() + " " +
                            (pairDir() / "blurred.jpg").string() + " --channels g --rounds 0 --kernel " +
@@ -75,7 +75,7 @@ TEST(CalibrateCli, BundledPairWithKnownKernel) {
 // The main job end to end on the bundled semi-real pair (real photo, measured curve, Levin kernel, handheld shift
 // and rotation, noise, JPEG, EXIF): the kernel AND the registration unknown.
 TEST(CalibrateCli, BundledPairEstimatedKernel) {
-  if (!fs::exists(pairDir() / "sharp.jpg")) GTEST_SKIP();
+  ASSERT_TRUE(fs::exists(pairDir() / "sharp.jpg")) << "bundled pair missing";
   test::TempDir dir;
   const auto r = test::run(bin() + " calibrate " + (pairDir() / "sharp.jpg").string() + " " +
                            (pairDir() / "blurred.jpg").string() + " --channels g -o " + (dir / "out").string());
@@ -99,7 +99,7 @@ TEST(CalibrateCli, BundledPairEstimatedKernel) {
 
 // One shot held in portrait, the other in landscape: the sharp one is turned, not rejected.
 TEST(CalibrateCli, PortraitAgainstLandscapeIsTurned) {
-  if (!fs::exists(pairDir() / "sharp.jpg")) GTEST_SKIP();
+  ASSERT_TRUE(fs::exists(pairDir() / "sharp.jpg")) << "bundled pair missing";
   test::TempDir dir;
   cv::Mat sharp = cv::imread((pairDir() / "sharp.jpg").string());
   cv::rotate(sharp, sharp, cv::ROTATE_90_COUNTERCLOCKWISE);
@@ -117,7 +117,7 @@ TEST(CalibrateCli, PortraitAgainstLandscapeIsTurned) {
 }
 
 TEST(CalibrateCli, FixRatioKeepsTheGivenRatio) {
-  if (!fs::exists(pairDir() / "sharp.jpg")) GTEST_SKIP();
+  ASSERT_TRUE(fs::exists(pairDir() / "sharp.jpg")) << "bundled pair missing";
   test::TempDir dir;
   const auto r = test::run(bin() + " calibrate -q " + (pairDir() / "sharp.jpg").string() + " " +
                            (pairDir() / "blurred.jpg").string() + " --channels g --rounds 0 --ratio 1.2 --fix-ratio -o " +

@@ -81,7 +81,7 @@ TEST(ExifRead, MissingFileNamesIt) {
 
 TEST(ExifRead, BundledSamplePair) {
   const fs::path dir = test::samples() / "pairs";
-  if (!fs::exists(dir / "sharp.jpg")) GTEST_SKIP() << "no bundled pair";
+  ASSERT_TRUE(fs::exists(dir / "sharp.jpg")) << "bundled pair missing";
   const ExifExposure sharp = io::readExif(dir / "sharp.jpg");
   const ExifExposure blurred = io::readExif(dir / "blurred.jpg");
   ASSERT_TRUE(sharp.usable());

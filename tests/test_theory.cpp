@@ -149,7 +149,7 @@ TEST(TheoryClaim1, UniformRegionsHaveZeroGammaOnSyntheticImage) {
 }
 
 TEST(TheoryClaim1, UniformRegionsHaveZeroGammaOnLevinImages) {
-  if (!levinAvailable()) GTEST_SKIP() << "samples/levin09 missing";
+  ASSERT_TRUE(levinAvailable()) << "bundled samples/levin09 missing";
   // Natural 8-bit images have hardly any neighbourhood of exactly constant intensity (the bundled ones: none
   // under any Levin kernel), so this mostly documents that; the synthetic test above carries Claim 1.
   long long uniform = 0;
@@ -188,7 +188,7 @@ TEST(TheoryClaim2, SmoothSignalGammaGrowsWithKernelSize) {
 }
 
 TEST(TheoryClaim2, SecondOrderBoundOnLevinImages) {
-  if (!levinAvailable()) GTEST_SKIP() << "samples/levin09 missing";
+  ASSERT_TRUE(levinAvailable()) << "bundled samples/levin09 missing";
   // For φ = x^γ and a pixel whose neighbourhood spans [a, b] = [Imin, Imax], δ = b − a, a Taylor bound gives
   //   0 ≤ Γ ≤ (δ²/8) · max_[a,b] φ'' / min_[a,b] φ' = (δ²/8)(γ − 1) max(a^(γ−2), b^(γ−2)) / a^(γ−1)
   // (Var_K(I) ≤ δ²/4, Popoviciu). Checked where a ≥ 0.1; + 1e-6 for the tabulation of φ.
@@ -288,7 +288,7 @@ TEST(TheoryPattern, EdgeGammaGrowsWithContrastAndMatchesPrediction) {
 // Theorem 1 and its converse on the Levin images.
 
 TEST(TheoryTheorem1, HoldsOnLevinImagesForConvexCurves) {
-  if (!levinAvailable()) GTEST_SKIP() << "samples/levin09 missing";
+  ASSERT_TRUE(levinAvailable()) << "bundled samples/levin09 missing";
   const auto convex = convexCurves();
   ASSERT_GE(convex.size(), 4u);
   for (const auto& [name, table] : convex) {
@@ -319,7 +319,7 @@ TEST(TheoryTheorem1, HoldsOnLevinImagesForConvexCurves) {
 }
 
 TEST(TheoryTheorem1, UpperBoundHoldsForAnyMonotoneCurve) {
-  if (!levinAvailable()) GTEST_SKIP() << "samples/levin09 missing";
+  ASSERT_TRUE(levinAvailable()) << "bundled samples/levin09 missing";
   // Eq. 15–16: Imin ≤ B̂ and B ≤ Imax need only monotone φ, so Γ ≤ Imax − Imin holds for non-convex curves too.
   // (The convex curves are covered by HoldsOnLevinImagesForConvexCurves.)
   for (size_t i = 0; i < curves().size(); ++i) {
@@ -341,7 +341,7 @@ TEST(TheoryTheorem1, UpperBoundHoldsForAnyMonotoneCurve) {
 }
 
 TEST(TheoryTheorem1, ConcaveCurveBreaksLowerBound) {
-  if (!levinAvailable()) GTEST_SKIP() << "samples/levin09 missing";
+  ASSERT_TRUE(levinAvailable()) << "bundled samples/levin09 missing";
   const ResponseCurve concave(GammaModel{1 / 2.2});
   int index = 0;
   for (const auto& context : levinContexts()) {
@@ -356,7 +356,7 @@ TEST(TheoryTheorem1, ConcaveCurveBreaksLowerBound) {
 
 TEST(TheoryTheorem1, LinearResponseMakesBothModelsEqual) {
   // φ(x) = x: B = I ⊗ K = B̂, Γ = 0 up to rounding — the checker measures the model difference, nothing else.
-  if (!levinAvailable()) GTEST_SKIP() << "samples/levin09 missing";
+  ASSERT_TRUE(levinAvailable()) << "bundled samples/levin09 missing";
   const ResponseCurve identity;
   for (const auto& context : levinContexts()) {
     const auto check = theory::checkTheorem1(context, identity);
