@@ -89,6 +89,7 @@ struct SyntheticArgs {
   std::vector<std::string> variants;
   int cases_limit = 0;
   std::vector<double> noise_vars;
+  std::string noise_units = "unit";  // unit: variances of I in [0,1]; 8bit: in 8-bit levels² (÷ 255²)
   int threads = 2;
   double ratio = 1.0;
   bool quiet = false;
@@ -223,6 +224,7 @@ int runSynthetic(const SyntheticArgs& args) {
   Progress progress(args.quiet);
   if (args.noise_vars.size() == 3)
     for (int i = 0; i < 3; ++i) kNoiseVariances[i] = args.noise_vars[i];
+  const double variance_scale = args.noise_units == "8bit" ? 1.0 / (255.0 * 255.0) : 1.0;
   bool stand_ins = false;
   const std::vector<Curve> curves = loadCurves(args.curves, stand_ins);
   std::vector<std::string> image_paths = args.images;
@@ -281,7 +283,7 @@ int runSynthetic(const SyntheticArgs& args) {
           out.image = cs.image;
           try {
             SimulationOptions sim;
-            sim.noise_variance = kNoiseVariances[cs.level];
+            sim.noise_variance = kNoiseVariances[cs.level] * variance_scale;
             sim.ratio = args.ratio;
             sim.seed = 1000003ULL * (cs.curve + 1) + 1009ULL * (cs.kernel + 1) + cs.level + 1;
             const ResponseModel truth = TableModel{curves[cs.curve].phi};
@@ -341,6 +343,9 @@ int runSynthetic(const SyntheticArgs& args) {
     for (const auto& c : curves) s += (s.empty() ? "" : ", ") + c.name;
     return s;
   }().c_str());
+  std::printf("noise: Gaussian on I with the variances below %s\n",
+              args.noise_units == "8bit" ? "in 8-bit levels^2 (I in [0,255]; sigma 0.03-0.1 of a level)"
+                                         : "for I in [0,1] (sigma 8-25 of 255 levels)");
   std::printf("error: RMSE of phi over 1024 points of [0,1]; wall time %.1f s on %d thread(s)\n\n", wall, args.threads);
   std::printf("%-20s %9s %9s %9s %9s %9s %10s %9s\n", "method", "noise var", "mean", "median", "max", "seed mean", "s/case",
               "shape");
@@ -349,6 +354,7 @@ int runSynthetic(const SyntheticArgs& args) {
   json["curves"] = nlohmann::json::array();
   for (const auto& c : curves) json["curves"].push_back(c.name);
   json["stand_in_curves"] = stand_ins;
+  json["noise_units"] = args.noise_units;
   json["seed_published_mean_rmse"] = {kSeedMean[0], kSeedMean[1], kSeedMean[2]};
   json["ggcm_floor"] = {{"mean_rmse", floor_mean}, {"per_curve", floor_rmse}};
   json["wall_seconds"] = wall;
@@ -376,6 +382,12 @@ int runSynthetic(const SyntheticArgs& args) {
     else if (v.name == "seed") json["seed_method"] = levels;
     json["variants"][v.name] = {{"description", v.description}, {"levels", levels}};
   }
+  // Per case (for per-curve or paired comparisons of the variants).
+  json["per_case"] = nlohmann::json::array();
+  for (const auto& r : results)
+    json["per_case"].push_back({{"curve", curves[r.curve].name}, {"kernel", r.kernel + 1}, {"image", r.image + 1},
+                                {"noise_var", kNoiseVariances[r.level]}, {"rmse", r.rmse}, {"shape_rmse", r.shape},
+                                {"chosen", r.chosen}});
   std::printf("%-20s %9s %9.4f   (best GGCM fit of each true curve: the lower bound for GGCM fits)\n", "ggcm floor",
               "-", floor_mean);
   std::printf("shape: mean RMSE over x <= %.1f after the best common factor (phi's shape without the phi(1) = 1 "
@@ -537,6 +549,11 @@ const BenchRegistration synthetic_registration(
       command.add_option("--curves", args->curves,
                          "Directory of camera curve tables (<Camera>.csv); default: samples/camera_curves");
       command.add_option("--noise-vars", args->noise_vars, "Override the three noise variances (diagnostics)")->expected(3);
+      command.add_option("--noise-units", args->noise_units,
+                         "Units of the noise variances: unit (I in [0,1], the literal reading of the seed) or 8bit "
+                         "(I in [0,255] levels)")
+          ->check(CLI::IsMember({"unit", "8bit"}))
+          ->capture_default_str();
       command.add_option("--cases-limit", args->cases_limit, "Run only this many cases (spread over the grid)");
       command.add_option("--json", args->json, "Write the numbers as JSON");
       command.add_option("--plot", args->plot, "Write the seed's Fig. 5 (estimated vs true phi) as PNGs here");

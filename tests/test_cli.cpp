@@ -39,6 +39,35 @@ TEST(Cli, VersionAndHelp) {
   EXPECT_NE(none.exit_code, 0);
 }
 
+// The synthetic benchmark end to end on three of its cases (one per noise level): the JSON carries the seed's
+// published means, one entry per case, and the error grows with the noise: the same cases with the variances
+// read in 8-bit levels² (practically noise-free) come out more accurate, within 0.015 (240 cases: 0.006–0.008).
+TEST(Cli, BenchSyntheticWritesItsTableAndNoiseHurts) {
+  TempDir dir;
+  double mean_error[2] = {0, 0};
+  const char* units[2] = {"unit", "8bit"};
+  for (int u = 0; u < 2; ++u) {
+    const fs::path json_path = dir / (std::string(units[u]) + ".json");
+    const auto result = run(quote(crfcalBinary()) + " bench synthetic -q --no-timing --method default --cases-limit 3 " +
+                            "--threads 1 --noise-units " + units[u] + " --json " + quote(json_path));
+    ASSERT_EQ(result.exit_code, 0) << result.output;
+    EXPECT_NE(result.output.find("seed mean"), std::string::npos) << result.output;
+    const auto json = readJson(json_path);
+    EXPECT_EQ(json["noise_units"], units[u]);
+    ASSERT_EQ(json["per_case"].size(), 3u);
+    ASSERT_EQ(json["levels"].size(), 3u);
+    EXPECT_DOUBLE_EQ(json["seed_published_mean_rmse"][0].get<double>(), 0.0155);
+    for (const auto& level : json["levels"]) {
+      const double e = level["mean_rmse"].get<double>();
+      EXPECT_GT(e, 0.0);
+      EXPECT_LT(e, 0.2);
+      mean_error[u] += e / 3;
+    }
+  }
+  EXPECT_LT(mean_error[1], mean_error[0]) << "[0,1] variances " << mean_error[0] << ", 8-bit " << mean_error[1];
+  EXPECT_LT(mean_error[1], 0.015);
+}
+
 struct RoundTripCase {
   std::string crf;
   ResponseModel model;
