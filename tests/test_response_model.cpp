@@ -87,6 +87,27 @@ TEST(ResponseCurve, RejectsInvalidSamples) {
   EXPECT_NO_THROW(ResponseCurve::fromSamples({0.0, 0.2, 1.0}));
 }
 
+// A model valid on the fine validity grid (dips < 1e-6 per 1/4096 step) can dip by more between two of the 1024
+// samples crfcal returns; the returned table must still be one that ResponseCurve accepts (a St. Louis pair stopped
+// `calibrate` with "invalid response curve: curve decreases near x = 0.98" before sampleValidTable).
+TEST(ResponseModel, ValidTableOfAModelWithRoundingDips) {
+  std::vector<double> phi(kCurveSamples);
+  for (int i = 0; i < kCurveSamples; ++i) phi[i] = double(i) / (kCurveSamples - 1);
+  phi[1004] = phi[1003] - 3e-6;  // a dip of 3e-6 over one sample step
+  const ResponseModel model = TableModel{phi};
+  ASSERT_TRUE(checkValidity(model, 4096, 1e-6));
+  EXPECT_THROW(ResponseCurve::fromSamples(sampleInverse(model)), InvalidInput);
+  const std::vector<double> table = sampleValidTable(model);
+  EXPECT_NO_THROW(ResponseCurve::fromSamples(table));
+  EXPECT_EQ(table.front(), 0.0);
+  EXPECT_EQ(table.back(), 1.0);
+  const std::vector<double> raw = sampleInverse(model);
+  for (int i = 1; i < kCurveSamples; ++i) {
+    EXPECT_GE(table[i], table[i - 1]);
+    EXPECT_NEAR(table[i], raw[i], 3e-6);
+  }
+}
+
 TEST(CurveFit, GgcmRecoversRepresentableCurve) {
   const GgcmModel truth{{0.42, 0.15, -0.1, 0.05, 0.02}};
   const auto samples = sampleInverse(truth);

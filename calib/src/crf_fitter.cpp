@@ -127,6 +127,7 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 
 bool isValid(const ResponseModel& model) { return static_cast<bool>(checkValidity(model, 4096, 1e-6)); }
 
+
 bool monotone(const std::vector<double>& f) {
   for (std::size_t i = 1; i < f.size(); ++i)
     if (f[i] < f[i - 1]) return false;
@@ -1302,7 +1303,7 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
     if (!c.valid) continue;
     if (!best || (std::isfinite(c.criterion) && !(c.criterion >= best->criterion))) best = &c;
   }
-  for (auto& c : candidates) c.inverse_crf = sampleInverse(c.model, kCurveSamples);
+  for (auto& c : candidates) c.inverse_crf = sampleValidTable(c.model);
   if (best) {
     result.model = best->model;
     result.ratio = best->ratio;
@@ -1323,10 +1324,10 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
     result.choice_reason = "no candidate was a valid (monotone) curve; returned the gamma 2.2 start";
   }
   result.candidates = std::move(candidates);
-  result.inverse_crf = sampleInverse(result.model, kCurveSamples);
-  if (!isValid(TableModel{result.inverse_crf})) {  // belt and braces
+  result.inverse_crf = sampleValidTable(result.model);
+  if (!checkValidity(TableModel{result.inverse_crf}, kCurveSamples, 1e-6)) {  // belt and braces (e.g. NaN)
     result.model = ggcm::fromGamma(2.2, options.ggcm_degree);
-    result.inverse_crf = sampleInverse(result.model, kCurveSamples);
+    result.inverse_crf = sampleValidTable(result.model);
     result.chosen = "fallback";
     result.choice_reason = "the chosen curve failed validation; returned the gamma 2.2 start";
   }

@@ -69,6 +69,14 @@ std::vector<double> sampleInverse(const ResponseModel& model, int n) {
   return samples;
 }
 
+std::vector<double> sampleValidTable(const ResponseModel& model, int n) {
+  std::vector<double> phi = sampleInverse(model, n);
+  phi.front() = 0.0;
+  phi.back() = 1.0;
+  for (std::size_t i = 1; i < phi.size(); ++i) phi[i] = std::clamp(phi[i], phi[i - 1], 1.0);
+  return phi;
+}
+
 ModelValidity checkValidity(const ResponseModel& model, int grid, double tolerance) {
   if (const auto* g = std::get_if<GammaModel>(&model); g && !(g->gamma > 0 && std::isfinite(g->gamma)))
     return {false, "gamma must be positive"};

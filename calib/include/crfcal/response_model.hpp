@@ -40,6 +40,11 @@ double evaluateInverse(const ResponseModel& model, double x);
 // φ at x = i/(n−1), i = 0..n−1.
 std::vector<double> sampleInverse(const ResponseModel& model, int n = kCurveSamples);
 
+// The same, made an exact table of a valid φ: φ(0) = 0, φ(1) = 1, non-decreasing (running maximum, clamped to 1).
+// A model valid on a fine grid may still dip by rounding-level amounts near a flat shoulder that add up between
+// two coarser samples; this is the table crfcal returns and writes.
+std::vector<double> sampleValidTable(const ResponseModel& model, int n = kCurveSamples);
+
 struct ModelValidity {
   bool valid = true;
   std::string reason;  // empty when valid
