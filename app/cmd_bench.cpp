@@ -343,9 +343,13 @@ int runSynthetic(const SyntheticArgs& args) {
     for (const auto& c : curves) s += (s.empty() ? "" : ", ") + c.name;
     return s;
   }().c_str());
-  std::printf("noise: Gaussian on I with the variances below %s\n",
-              args.noise_units == "8bit" ? "in 8-bit levels^2 (I in [0,255]; sigma 0.03-0.1 of a level)"
-                                         : "for I in [0,1] (sigma 8-25 of 255 levels)");
+  {
+    const double to_levels = args.noise_units == "8bit" ? 1.0 : 255.0;  // σ in 8-bit levels
+    std::printf("noise: Gaussian on I with the variances below %s (sigma %.2g to %.2g of 255 levels)\n",
+                args.noise_units == "8bit" ? "in 8-bit levels^2 (I in [0,255])" : "for I in [0,1]",
+                std::sqrt(*std::min_element(kNoiseVariances, kNoiseVariances + 3)) * to_levels,
+                std::sqrt(*std::max_element(kNoiseVariances, kNoiseVariances + 3)) * to_levels);
+  }
   std::printf("error: RMSE of phi over 1024 points of [0,1]; wall time %.1f s on %d thread(s)\n\n", wall, args.threads);
   std::printf("%-20s %9s %9s %9s %9s %9s %10s %9s\n", "method", "noise var", "mean", "median", "max", "seed mean", "s/case",
               "shape");

@@ -127,7 +127,6 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 
 bool isValid(const ResponseModel& model) { return static_cast<bool>(checkValidity(model, 4096, 1e-6)); }
 
-
 bool monotone(const std::vector<double>& f) {
   for (std::size_t i = 1; i < f.size(); ++i)
     if (f[i] < f[i - 1]) return false;
