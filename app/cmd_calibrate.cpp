@@ -287,7 +287,7 @@ int runCalibrate(const CalibrateArgs& args) {
     // One warning naming every chroma-subsampled shot (only when R and B are fitted: G is carried by luma).
     std::vector<std::string> subsampled;
     for (const auto* shot : {&pair.sharp, &pair.blurred})
-      if (!shot->chroma_subsampling.empty() && shot->chroma_subsampling != "4:4:4" && shot->chroma_subsampling != "grey")
+      if (shot->chroma_subsampled)
         subsampled.push_back(shot->path.string() + " (" + shot->chroma_subsampling + ")");
     if (!subsampled.empty() && result.fits.size() > 1) {
       std::string files = subsampled.front();

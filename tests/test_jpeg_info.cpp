@@ -42,9 +42,13 @@ TEST(JpegInfo, GreyAndBrokenFiles) {
 }
 
 TEST(JpegInfo, LoadImageRecordsItOnlyForJpeg) {
-  EXPECT_EQ(io::loadImage(test::samples() / "pairs" / "blurred.jpg").chroma_subsampling, "4:2:0");
+  const io::LoadedImage jpeg = io::loadImage(test::samples() / "pairs" / "blurred.jpg");
+  EXPECT_EQ(jpeg.chroma_subsampling, "4:2:0");
+  EXPECT_TRUE(jpeg.chroma_subsampled);
+  EXPECT_FALSE(io::loadImage(test::samples() / "jpeg" / "crop_444.jpg").chroma_subsampled);
   test::TempDir dir;
   const fs::path png = dir / "a.png";
   ASSERT_TRUE(cv::imwrite(png.string(), cv::Mat(32, 32, CV_8UC3, cv::Scalar(10, 90, 200))));
   EXPECT_TRUE(io::loadImage(png).chroma_subsampling.empty());
+  EXPECT_FALSE(io::loadImage(png).chroma_subsampled);
 }

@@ -498,30 +498,35 @@ struct MomentSystem {
   int levels() const { return static_cast<int>(h.cols()); }
 };
 
-// Node triples of the local-exponent penalty: nodes every (L−1)/64 levels, the chains from the first node up to the
-// lowest covered level and from the highest covered level up to 1 (one node inside the data links each chain to
-// the exponent the data show).
+// Nodes of the local-exponent terms: levels j·(L−1)/64, j = 1..64 (x = 0 has no logarithm).
+std::vector<int> exponentNodes(int L) {
+  std::vector<int> nodes;
+  for (int j = 1; j <= 64; ++j) nodes.push_back(static_cast<int>(std::lround(j * (L - 1) / 64.0)));
+  return nodes;
+}
+
+// Node triples of the extrapolation prior: the chains from the first node up to the lowest covered level and from
+// the highest covered level up to 1 (one node inside the data links each chain to the exponent the data show).
+// A triple belongs to a chain when an outer node lies outside the covered range — unless its middle node is inside
+// and that outer node less than one node step outside (such a triple is data, not extrapolation).
 std::vector<std::array<int, 3>> exponentTriples(int L, int covered_lo, int covered_hi) {
   const double step = (L - 1) / 64.0;
-  std::vector<int> nodes;
-  for (int j = 1; j <= 64; ++j) nodes.push_back(static_cast<int>(std::lround(j * step)));
+  const std::vector<int> nodes = exponentNodes(L);
   std::vector<std::array<int, 3>> triples;
-  const int n = static_cast<int>(nodes.size());
-  for (int j = 0; j + 2 < n; ++j) {
+  for (std::size_t j = 0; j + 2 < nodes.size(); ++j) {
     const int a = nodes[j], b = nodes[j + 1], c = nodes[j + 2];
-    // a triple belongs to a chain when at least one of its two intervals leaves the covered range
-    if (b <= covered_lo || b >= covered_hi || a < covered_lo - step || c > covered_hi + step)
-      if (a < covered_lo || c > covered_hi) triples.push_back({a, b, c});
+    const bool outside = a < covered_lo || c > covered_hi;
+    const bool barely = b > covered_lo && b < covered_hi && a >= covered_lo - step && c <= covered_hi + step;
+    if (outside && !barely) triples.push_back({a, b, c});
   }
   return triples;
 }
 
-// Consecutive node pairs (every (L−1)/64 levels) for the local-exponent lower bound.
+// Consecutive node pairs for the local-exponent lower bound.
 std::vector<std::array<int, 2>> exponentPairs(int L) {
+  const std::vector<int> nodes = exponentNodes(L);
   std::vector<std::array<int, 2>> pairs;
-  const double step = (L - 1) / 64.0;
-  for (int j = 1; j < 64; ++j)
-    pairs.push_back({static_cast<int>(std::lround(j * step)), static_cast<int>(std::lround((j + 1) * step))});
+  for (std::size_t j = 0; j + 1 < nodes.size(); ++j) pairs.push_back({nodes[j], nodes[j + 1]});
   return pairs;
 }
 
@@ -579,19 +584,24 @@ struct ModelFit {
 // Monotonicity penalty residuals on the 1024 grid: √P · max(0, f_i − f_{i+1} + ε).
 constexpr double kPenaltyScale = 1e3;
 
+// with_prior: include the extrapolation prior rows (the lower bound on the local exponent is always included).
 ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vector<std::vector<double>> starts,
-                         double r0, bool fit_ratio, int max_iterations) {
+                         double r0, bool fit_ratio, int max_iterations, bool with_prior) {
   const int L = sys.levels();
   const int d = curve.dims();
   const int rows = static_cast<int>(sys.h.rows());
   const bool emor = curve.kind() == Curve::kEmor;
   const double norm = 1.0 / std::sqrt(std::max(sys.weight, 1e-300));
   const int monotone_rows = emor ? kGrid - 1 : 0;
-  const int prior_rows = sys.exponent_weight > 0 ? static_cast<int>(sys.exponent_triples.size()) : 0;
+  const int prior_rows = with_prior && sys.exponent_weight > 0 ? static_cast<int>(sys.exponent_triples.size()) : 0;
   const int bound_rows = sys.min_exponent > 0 ? static_cast<int>(sys.exponent_pairs.size()) : 0;
   const int extra = monotone_rows + prior_rows + bound_rows;
   const double prior_scale = std::sqrt(sys.exponent_weight);
   auto logx = [L](int v) { return std::log(double(v) / (L - 1)); };
+  // d log φ / d log x between levels a < b
+  auto localExponent = [&](const std::vector<double>& f, int a, int b) {
+    return (std::log(f[b]) - std::log(f[a])) / (logx(b) - logx(a));
+  };
   ResidualFn fn = [&](const Eigen::VectorXd& p, Eigen::VectorXd& res, Eigen::MatrixXd* jac) {
     std::vector<double> f, jf;
     std::vector<double> psc(prior_rows);
@@ -622,8 +632,7 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
     }
     for (int i = 0; i < prior_rows; ++i) {
       const auto& t = sys.exponent_triples[i];
-      const double g1 = (std::log(f[t[1]]) - std::log(f[t[0]])) / (logx(t[1]) - logx(t[0]));
-      const double g2 = (std::log(f[t[2]]) - std::log(f[t[1]])) / (logx(t[2]) - logx(t[1]));
+      const double g1 = localExponent(f, t[0], t[1]), g2 = localExponent(f, t[1], t[2]);
       // above the data a rising exponent (a shoulder) is free, a falling one costs the shoulder weight
       psc[i] = sys.exponent_upper[i] ? (g2 < g1 ? std::sqrt(sys.shoulder_weight) : 0.0) : prior_scale;
       res[rows + monotone_rows + i] = psc[i] * (g2 - g1);
@@ -631,7 +640,7 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
     const int bound_offset = rows + monotone_rows + prior_rows;
     for (int i = 0; i < bound_rows; ++i) {
       const auto& t = sys.exponent_pairs[i];
-      const double g = (std::log(f[t[1]]) - std::log(f[t[0]])) / (logx(t[1]) - logx(t[0]));
+      const double g = localExponent(f, t[0], t[1]);
       res[bound_offset + i] = kPenaltyScale * std::max(0.0, sys.min_exponent - g);
     }
     if (jac) {
@@ -816,14 +825,10 @@ double momentEnergy(const MomentSystem& sys, const std::vector<double>& f, doubl
 // data energy stays within `energy_factor` of the unregularised one (CrfFitOptions::prior_energy_factor).
 ModelFit fitModelMomentsWithPrior(const Curve& curve, const MomentSystem& sys, std::vector<std::vector<double>> starts,
                                   double r0, bool fit_ratio, int max_iterations, double energy_factor) {
-  MomentSystem bare = sys;
-  bare.exponent_triples.clear();
-  bare.exponent_upper.clear();
-  bare.exponent_weight = 0;
-  ModelFit plain = fitModelMoments(curve, bare, starts, r0, fit_ratio, max_iterations);
+  ModelFit plain = fitModelMoments(curve, sys, starts, r0, fit_ratio, max_iterations, false);
   if (sys.exponent_triples.empty() || sys.exponent_weight <= 0) return plain;
   if (!plain.x.empty()) starts.push_back(plain.x);
-  ModelFit prior = fitModelMoments(curve, sys, starts, r0, fit_ratio, max_iterations);
+  ModelFit prior = fitModelMoments(curve, sys, starts, r0, fit_ratio, max_iterations, true);
   prior.evaluations += plain.evaluations;
   prior.iterations += plain.iterations;
   plain.evaluations = prior.evaluations;
@@ -831,7 +836,7 @@ ModelFit fitModelMomentsWithPrior(const Curve& curve, const MomentSystem& sys, s
   auto dataEnergy = [&](const ModelFit& m) {
     std::vector<double> f;
     if (m.x.empty() || !curve.values(m.x.data(), f, nullptr)) return kInf;
-    const double e = momentEnergy(bare, f, m.ratio);
+    const double e = momentEnergy(sys, f, m.ratio);  // the data rows only
     return std::isfinite(e) ? e : kInf;
   };
   const double e0 = dataEnergy(plain), e1 = dataEnergy(prior);

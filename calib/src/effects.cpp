@@ -1377,15 +1377,18 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
   // (the model without it vs the final one, around the final φ). Greedy forward selection keeps a companion that
   // only absorbed what the first effect's unsettled re-fit left behind (measured on planted channel mixing: an
   // offset, clipping or vignetting named next to it in 6 of 20 pairs).
+  auto specWithout = [&](const std::string& dropped) {  // the selected effects except `dropped`
+    Spec spec;
+    for (const auto& other : selected)
+      if (other != dropped) spec = extend(spec, other);
+    return spec;
+  };
   while (selected.size() >= 2) {
     std::string weakest;
     double weakest_gain = std::numeric_limits<double>::infinity();
     Comparison weakest_cmp;
     for (const auto& name : selected) {
-      Spec reduced;
-      for (const auto& other : selected)
-        if (other != name) reduced = extend(reduced, other);
-      const Comparison cmp = effectTest(name, problem.evaluate(reduced), current_eval);
+      const Comparison cmp = effectTest(name, problem.evaluate(specWithout(name)), current_eval);
       if (!(cmp.gain >= options.min_gain && cmp.z >= options.min_z) && cmp.gain < weakest_gain) {
         weakest = name;
         weakest_gain = cmp.gain;
@@ -1399,9 +1402,7 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
     e.gain = weakest_cmp.gain;
     e.statistic = weakest_cmp.z;
     e.parameters["dropped_by_backward_pass"] = true;
-    Spec reduced;
-    for (const auto& other : selected) reduced = extend(reduced, other);
-    current = reduced;
+    current = specWithout({});
     current_eval = problem.evaluate(current);
   }
 

@@ -65,7 +65,11 @@ LoadedImage loadImage(const fs::path& path, const RawDecodeOptions& raw_options)
     if (loaded.image.depth() == CV_32F) throw Error("floating-point images are not supported (8 or 16 bit)", path.string());
     if (loaded.image.channels() == 4) cv::cvtColor(loaded.image, loaded.image, cv::COLOR_BGRA2BGR);
     loaded.exposure = readExif(path);
-    if (loaded.format == "jpeg") loaded.chroma_subsampling = readJpegInfo(path).subsampling;
+    if (loaded.format == "jpeg") {
+      const JpegInfo info = readJpegInfo(path);
+      loaded.chroma_subsampling = info.subsampling;
+      loaded.chroma_subsampled = info.chroma_subsampled();
+    }
   }
   loaded.sharpness = normalisedGradientEnergy(loaded.image);
   return loaded;
