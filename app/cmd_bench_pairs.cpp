@@ -46,6 +46,9 @@ struct PairsArgs {
   int max_side = 800;
   int kernel_size = 35;
   std::string channels = "g";
+  double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;
+  std::string noise_handling = toString(PairCalibrationOptions{}.fit.noise);
+  bool fix_ratio = false;
   bool pairs_only = false;
 };
 
@@ -156,6 +159,9 @@ int runPairs(const PairsArgs& args) {
             options.kernel.kernel_size = args.kernel_size;
             options.rgb = args.channels == "rgb";
             options.fit.initial_ratio = loaded.exif_ratio->ratio();
+            options.fit.ratio_prior_sigma = args.ratio_prior;
+            options.fit.noise = noiseHandlingFromString(args.noise_handling);
+            options.fit.fit_ratio = !args.fix_ratio;
             const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
             const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
             const double rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(truth));
@@ -236,6 +242,13 @@ const BenchRegistration registration(
       command.add_option("--max-side", args->max_side, "Downscale the photo to this longest side");
       command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)");
       command.add_option("--channels", args->channels, "g or rgb")->check(CLI::IsMember({"g", "rgb"}));
+      command.add_option("--noise-handling", args->noise_handling, "The sharp shot's noise in the fit: jensen, none, debias, denoise")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"jensen", "none", "debias", "denoise"}));
+      command.add_flag("--fix-ratio", args->fix_ratio, "Keep r at the (deliberately off) EXIF value, as calibrate --fix-ratio");
+      command.add_option("--ratio-prior", args->ratio_prior, "Sigma of the EXIF prior on log r (0: r from the images alone)")
+          ->capture_default_str()
+          ->check(CLI::NonNegativeNumber);
       command.add_flag("--pairs-only", args->pairs_only, "Only write the pairs (no calibration)");
       command.add_option("-o,--output", args->output, "Output directory")->required();
       return [args] { return runPairs(*args); };

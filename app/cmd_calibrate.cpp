@@ -39,6 +39,8 @@ struct CalibrateArgs {
   bool no_white_balance = false;
   bool no_register = false;
   bool fix_ratio = false;
+  double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;  // σ of log r around EXIF/--ratio
+  std::string noise_handling = toString(PairCalibrationOptions{}.fit.noise);
   bool quiet = false;
   std::string raw_truth;            // RAW (or linear image) of one of the two shots
   std::string raw_truth_of = "auto";  // which shot it is: auto (EXIF), sharp, blurred
@@ -228,6 +230,8 @@ int runCalibrate(const CalibrateArgs& args) {
   options.register_pair = !args.no_register;
   options.fit.initial_ratio = ratio;
   options.fit.fit_ratio = !args.fix_ratio;
+  options.fit.ratio_prior_sigma = args.ratio_prior;
+  options.fit.noise = noiseHandlingFromString(args.noise_handling);
   options.fit.model = args.model == "ggcm" ? CrfModelChoice::ggcm
                       : args.model == "emor" ? CrfModelChoice::emor
                                              : CrfModelChoice::automatic;
@@ -319,6 +323,14 @@ int runCalibrate(const CalibrateArgs& args) {
   extra["exposure_ratio_used_as_seed"] = ratio;
   extra["exposure_ratio_per_channel"] = nlohmann::json::object();
   for (const auto& [name, fit] : result.fits) extra["exposure_ratio_per_channel"][name] = fit.ratio;
+  // the EXIF prior on log r (CrfFitOptions::ratio_prior_sigma) and what the images alone say, per channel
+  if (options.fit.fit_ratio && options.fit.ratio_prior_sigma > 0) {
+    extra["exposure_ratio_prior"] = {{"centre", ratio},
+                                     {"log_sigma", options.fit.ratio_prior_sigma},
+                                     {"images_only", nlohmann::json::object()}};
+    for (const auto& [name, fit] : result.fits)
+      if (fit.ratio_images_only > 0) extra["exposure_ratio_prior"]["images_only"][name] = fit.ratio_images_only;
+  }
   const cv::Mat& K = result.kernel.kernel;
   extra["kernel"] = {{"size", {K.cols, K.rows}},
                      {"file", "kernel.png"},
@@ -418,7 +430,13 @@ int runCalibrate(const CalibrateArgs& args) {
   progress.done();
 
   std::printf("%s\n", result.summary().c_str());
-  if (report.ratio_exif) std::printf("exposure ratio: EXIF %.4g, fitted %.4g\n", *report.ratio_exif, *report.ratio_fitted);
+  if (report.ratio_exif) {
+    std::printf("exposure ratio: EXIF %.4g, fitted %.4g", *report.ratio_exif, *report.ratio_fitted);
+    const CrfFitResult& g = result.fits.count("G") ? result.fits.at("G") : result.fits.begin()->second;
+    if (g.ratio_images_only > 0)
+      std::printf(" (images alone %.4g; prior sigma %.2g on log r)", g.ratio_images_only, options.fit.ratio_prior_sigma);
+    std::printf("\n");
+  }
   else std::printf("exposure ratio: given %.4g, fitted %.4g\n", ratio, *report.ratio_fitted);
   if (truth) {
     std::printf("RAW truth (%s, the %s shot):\n%s", truth->file.path.string().c_str(),
@@ -457,6 +475,16 @@ const CommandRegistration registration(
       command.add_flag("--fix-ratio", args->fix_ratio,
                        "Keep r at the EXIF/--ratio value instead of fitting it (weak blur leaves r and the curve's "
                        "exponent ambiguous: phi^g, r^g fit equally)");
+      command.add_option("--noise-handling", args->noise_handling,
+                         "The sharp shot's noise in the fit: jensen (second-order correction of Jensen's bias), none, "
+                         "debias (deconvolution), denoise (bilateral)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"jensen", "none", "debias", "denoise"}));
+      command.add_option("--ratio-prior", args->ratio_prior,
+                         "Fitted r: sigma of the prior on log r around the EXIF/--ratio value, weighed against what the "
+                         "blur determines (0: r from the images alone)")
+          ->capture_default_str()
+          ->check(CLI::NonNegativeNumber);
       auto* raw_truth = command.add_option("--raw-truth", args->raw_truth,
                          "Camera RAW (or a linear PNG/TIFF) of one of the two shots: its RAW->JPEG relation, the "
                          "camera's real response, is written to report.json (raw_truth) and compared with the result");

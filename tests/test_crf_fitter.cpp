@@ -190,6 +190,97 @@ TEST(CrfFit, NoiseHandlingReducesBiasOnNoisySharpImage) {
   EXPECT_LT(curveRmse(b.model, truth), curveRmse(a.model, truth)) << a.summary() << "\n" << b.summary();
 }
 
+// A pair with a 3-px blur and a noisy sharp shot (σ = 5 levels), r = 2: nearly a plain two-exposure pair, where
+// φ^γ with r^γ fit alike but for the blur inconsistency and Jensen's bias ½σ²φ'' of the noise.
+struct SmallBlurPair {
+  cv::Mat kernel = cv::Mat::zeros(3, 3, CV_64F);
+  SimulationResult pair;
+  SmallBlurPair() {
+    kernel.row(1).setTo(1.0 / 3);
+    SimulationOptions sim;
+    sim.ratio = 2;
+    sim.noise_variance = 0.02 * 0.02;
+    sim.seed = 9;
+    pair = simulatePair(0.45 * test::levinImage(1), GammaModel{2.2}, kernel, sim);
+  }
+};
+
+TEST(CrfFit, JensenCorrectionRemovesTheNoiseBiasOfASmallBlurPair) {
+  const SmallBlurPair p;
+  CrfFitOptions plain;
+  plain.initial_ratio = 2.2;  // 10 % off
+  plain.noise_sigma = 0.02;
+  CrfFitOptions jensen = plain;
+  jensen.noise = NoiseHandling::jensen;
+  const CrfFitResult a = fitInverseCrf(p.pair.sharp, p.pair.blurred, p.kernel, plain);
+  const CrfFitResult b = fitInverseCrf(p.pair.sharp, p.pair.blurred, p.kernel, jensen);
+  EXPECT_LT(std::abs(b.ratio / 2 - 1), 0.03) << b.summary();
+  EXPECT_LT(std::abs(a.ratio / 2 - 1), 0.03) << a.summary();
+  EXPECT_LT(curveRmse(b.model, GammaModel{2.2}), curveRmse(a.model, GammaModel{2.2})) << a.summary() << "\n" << b.summary();
+}
+
+TEST(CrfFit, RatioPriorPullsOnlyAnUndeterminedRatio) {
+  // Without a usable blur signal the prior decides (tiny σ: r stays at the centre); with a real blur the images do.
+  const SmallBlurPair p;
+  CrfFitOptions options;
+  options.initial_ratio = 2.6;
+  options.noise_sigma = 0.02;
+  const CrfFitResult free_fit = fitInverseCrf(p.pair.sharp, p.pair.blurred, p.kernel, options);
+  options.ratio_prior_sigma = 1e-3;
+  const CrfFitResult pinned = fitInverseCrf(p.pair.sharp, p.pair.blurred, p.kernel, options);
+  EXPECT_GT(std::abs(free_fit.ratio / 2.6 - 1), 0.05) << free_fit.summary();
+  EXPECT_NEAR(pinned.ratio, 2.6, 0.03 * 2.6) << pinned.summary();
+  EXPECT_GT(pinned.ratio_prior_scale, 0);
+  EXPECT_GT(pinned.ratio_images_only, 0);
+
+  SimulationOptions sim;
+  sim.ratio = 0.8;
+  sim.bits = 16;
+  const SimulationResult sharp_blur = simulatePair(test::levinImage(3), GammaModel{2.2}, test::levinKernel(2), sim);
+  CrfFitOptions exif;
+  exif.initial_ratio = 0.96;  // EXIF 20 % off
+  exif.ratio_prior_sigma = 0.2;
+  const CrfFitResult fit = fitInverseCrf(sharp_blur.sharp, sharp_blur.blurred, test::levinKernel(2), exif);
+  EXPECT_NEAR(fit.ratio, 0.8, 0.01) << fit.summary();
+}
+
+TEST(CrfFit, ShoulderReferenceKeepsExactDataExact) {
+  // The data reach x ≈ 0.45 only, so the shoulder prior acts on half the curve; it only breaks ties, and exact
+  // data have none (the real-pair effect of the prior: CalibrateRealPairs.OnePhonesThreeCurvesAgree).
+  SimulationOptions sim;
+  sim.bits = 16;
+  const GammaModel truth{2.2};
+  const SimulationResult pair = simulatePair(0.2 * test::levinImage(2), truth, test::levinKernel(3), sim);
+  CrfFitOptions options;
+  ASSERT_TRUE(options.shoulder_follows_emor_mean);
+  const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(3), options);
+  EXPECT_LT(fit.covered_levels.second, 0.5 * (fit.levels - 1)) << fit.summary();
+  EXPECT_LT(curveRmse(fit.model, truth), 5e-3) << fit.summary();
+}
+
+TEST(NoiseEstimation, ProfileFollowsSignalDependentNoise) {
+  // variance = 4e-4 x + 1e-5 (Poisson–Gaussian) on a smooth ramp: σ from 0.003 to 0.02
+  cv::Mat clean(240, 320, CV_64F);
+  for (int y = 0; y < clean.rows; ++y)
+    for (int x = 0; x < clean.cols; ++x) clean.at<double>(y, x) = 0.05 + 0.9 * x / (clean.cols - 1.0);
+  cv::Mat noise(clean.size(), CV_64F);
+  cv::RNG rng(3);
+  rng.fill(noise, cv::RNG::NORMAL, 0, 1);
+  cv::Mat sd;
+  cv::sqrt(4e-4 * clean + 1e-5, sd);
+  const cv::Mat noisy = clean + noise.mul(sd);
+  const NoiseProfile profile = estimateNoiseProfile(noisy);
+  ASSERT_GE(profile.level.size(), 4u);
+  for (std::size_t i = 0; i < profile.level.size(); ++i) {
+    const double expected = std::sqrt(4e-4 * profile.level[i] + 1e-5);
+    EXPECT_NEAR(profile.sigma[i], expected, 0.1 * expected) << profile.level[i];
+  }
+  const std::vector<double> per_level = noiseSigmaPerLevel(profile.level, profile.sigma, 256);
+  EXPECT_DOUBLE_EQ(per_level.front(), profile.sigma.front());
+  EXPECT_DOUBLE_EQ(per_level.back(), profile.sigma.back());
+  EXPECT_THROW(noiseSigmaPerLevel({}, {}, 256), InvalidInput);
+}
+
 TEST(CrfFit, OptionsAreChecked) {
   CrfFitOptions options;
   options.initial_ratio = 0;
@@ -198,6 +289,11 @@ TEST(CrfFit, OptionsAreChecked) {
   options.emor_terms = 0;
   EXPECT_THROW(options.check(), InvalidInput);
   EXPECT_NO_THROW(CrfFitOptions::seed().check());
+  options = {};
+  options.ratio_prior_sigma = -1;
+  EXPECT_THROW(options.check(), InvalidInput);
+  EXPECT_EQ(noiseHandlingFromString("jensen"), NoiseHandling::jensen);
+  EXPECT_THROW(noiseHandlingFromString("median"), InvalidInput);
 }
 
 }  // namespace

@@ -53,8 +53,15 @@ const char* toString(NoiseHandling value) {
     case NoiseHandling::none: return "none";
     case NoiseHandling::debias: return "debias";
     case NoiseHandling::denoise: return "denoise";
+    case NoiseHandling::jensen: return "jensen";
   }
   return "?";
+}
+
+NoiseHandling noiseHandlingFromString(const std::string& name) {
+  for (NoiseHandling value : {NoiseHandling::none, NoiseHandling::debias, NoiseHandling::denoise, NoiseHandling::jensen})
+    if (name == toString(value)) return value;
+  throw InvalidInput("unknown noise handling '" + name + "' (none, jensen, debias, denoise)");
 }
 
 CrfFitOptions CrfFitOptions::seed() {
@@ -86,6 +93,8 @@ void CrfFitOptions::check() const {
   if (!(exponent_smoothness >= 0)) throw InvalidInput("fit options: exponent_smoothness must be >= 0");
   if (!(shoulder_prior >= 0)) throw InvalidInput("fit options: shoulder_prior must be >= 0");
   if (!(prior_energy_factor >= 1)) throw InvalidInput("fit options: prior_energy_factor must be >= 1");
+  if (!(ratio_prior_sigma >= 0) || !std::isfinite(ratio_prior_sigma))
+    throw InvalidInput("fit options: ratio_prior_sigma must be >= 0");
   if (!(min_local_exponent >= 0 && min_local_exponent < 1))
     throw InvalidInput("fit options: min_local_exponent must be in [0, 1)");
   if (!(saturation_high > saturation_low)) throw InvalidInput("fit options: saturation_high must exceed saturation_low");
@@ -491,10 +500,16 @@ struct MomentSystem {
   std::vector<std::array<int, 3>> exponent_triples;
   double exponent_weight = 0;
   std::vector<char> exponent_upper;  // triple of the chain above the covered levels
-  double shoulder_weight = 0;        // upper triples: weight where the exponent falls (a rise is free)
+  double shoulder_weight = 0;        // upper triples: weight of the shoulder prior
+  // upper triples: the reference's change of local exponent (g_{bc} − g_{ab} of the EMoR mean g0) that φ's change
+  // is held to; empty: the one-sided prior (a rise is free, a fall costs shoulder_weight)
+  std::vector<double> shoulder_reference;
   // Lower bound (CrfFitOptions::min_local_exponent): rows kPenaltyScale · max(0, ε − g_ab) for consecutive nodes.
   std::vector<std::array<int, 2>> exponent_pairs;
   double min_exponent = 0;
+  // Exposure-ratio prior (CrfFitOptions::ratio_prior_sigma): one row scale · (log r − log r_EXIF) when r is fitted.
+  double ratio_prior_scale = 0;
+  double ratio_prior_log_centre = 0;
   int levels() const { return static_cast<int>(h.cols()); }
 };
 
@@ -595,7 +610,8 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
   const int monotone_rows = emor ? kGrid - 1 : 0;
   const int prior_rows = with_prior && sys.exponent_weight > 0 ? static_cast<int>(sys.exponent_triples.size()) : 0;
   const int bound_rows = sys.min_exponent > 0 ? static_cast<int>(sys.exponent_pairs.size()) : 0;
-  const int extra = monotone_rows + prior_rows + bound_rows;
+  const int ratio_rows = fit_ratio && sys.ratio_prior_scale > 0 ? 1 : 0;
+  const int extra = monotone_rows + prior_rows + bound_rows + ratio_rows;
   const double prior_scale = std::sqrt(sys.exponent_weight);
   auto logx = [L](int v) { return std::log(double(v) / (L - 1)); };
   // d log φ / d log x between levels a < b
@@ -633,9 +649,17 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
     for (int i = 0; i < prior_rows; ++i) {
       const auto& t = sys.exponent_triples[i];
       const double g1 = localExponent(f, t[0], t[1]), g2 = localExponent(f, t[1], t[2]);
-      // above the data a rising exponent (a shoulder) is free, a falling one costs the shoulder weight
-      psc[i] = sys.exponent_upper[i] ? (g2 < g1 ? std::sqrt(sys.shoulder_weight) : 0.0) : prior_scale;
-      res[rows + monotone_rows + i] = psc[i] * (g2 - g1);
+      double target = 0;
+      if (!sys.exponent_upper[i]) psc[i] = prior_scale;  // below the data: smoothness
+      else if (!sys.shoulder_reference.empty()) {
+        // above the data φ's local exponent changes as the measured mean camera's does (its shoulder)
+        psc[i] = std::sqrt(sys.shoulder_weight);
+        target = sys.shoulder_reference[i];
+      } else {
+        // the one-sided prior: a rising exponent (a shoulder) is free, a falling one costs the shoulder weight
+        psc[i] = g2 < g1 ? std::sqrt(sys.shoulder_weight) : 0.0;
+      }
+      res[rows + monotone_rows + i] = psc[i] * (g2 - g1 - target);
     }
     const int bound_offset = rows + monotone_rows + prior_rows;
     for (int i = 0; i < bound_rows; ++i) {
@@ -643,6 +667,7 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
       const double g = localExponent(f, t[0], t[1]);
       res[bound_offset + i] = kPenaltyScale * std::max(0.0, sys.min_exponent - g);
     }
+    if (ratio_rows) res[rows + extra - 1] = sys.ratio_prior_scale * (p[d] - sys.ratio_prior_log_centre);
     if (jac) {
       const int np = static_cast<int>(p.size());
       jac->setZero(rows + extra, np);
@@ -675,6 +700,7 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
         for (int j = 0; j < d; ++j)
           (*jac)(bound_offset + i, j) = -kPenaltyScale * (jm(j, t[1]) / f[t[1]] - jm(j, t[0]) / f[t[0]]) / d1;
       }
+      if (ratio_rows) (*jac)(rows + extra - 1, d) = sys.ratio_prior_scale;
     }
     return true;
   };
@@ -1040,6 +1066,29 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
     debias = NoiseDebias(dopt);
   }
   const bool debias_active = use_debias && !debias.identity();
+  // Second-order Jensen correction (NoiseHandling::jensen): g = φ − ½ σ²(v) φ''(v), so that E[g(I) | c] = φ(c) up
+  // to O(σ⁴). A tridiagonal operator on the level grid (g = J f, applied to the moment rows as H J like R above):
+  // local, so it does not amplify the noise the way the deconvolution R does.
+  // σ(v): given, else estimated per level from I (the sharp shot's noise grows with the signal: one σ for all levels
+  // over-corrects the shadows and under-corrects the highlights), else the single given σ.
+  Eigen::MatrixXd jensen;
+  if (options.noise == NoiseHandling::jensen && !seed_objective && (sigma > 0 || !options.noise_sigma_per_level.empty())) {
+    std::vector<double> sigma_v = options.noise_sigma_per_level;
+    if (sigma_v.empty() && options.noise_sigma < 0 && sharp.rows >= 9 && sharp.cols >= 9) {
+      const NoiseProfile profile = estimateNoiseProfile(prep.sharp_unit);
+      sigma_v = noiseSigmaPerLevel(profile.level, profile.sigma, L);
+    }
+    if (sigma_v.empty()) sigma_v.assign(L, sigma);
+    jensen = Eigen::MatrixXd::Identity(L, L);
+    for (int v = 0; v < L; ++v) {
+      const double sv = sigma_v[v];
+      const double s = 0.5 * sv * sv * double(L - 1) * double(L - 1);  // ½σ²/h², h = 1/(L−1)
+      const int c = std::clamp(v, 1, L - 2);  // the ends use the nearest interior second difference
+      jensen(v, c - 1) -= s;  // row v: g_v = f_v − s (f_{c+1} − 2 f_c + f_{c−1})
+      jensen(v, c) += 2 * s;
+      jensen(v, c + 1) -= s;
+    }
+  }
   // the noise transition matrix (for the CUE variances) also without debiasing
   NoiseDebias noise_only;
   const NoiseDebias* noise_t = nullptr;
@@ -1136,7 +1185,7 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
     result.timings.mixture_s = secondsSince(t_mix);
     std::vector<double> centre(bins);
     for (int k = 0; k < bins; ++k) centre[k] = (bin_level_bin[k] + 0.5) / K;
-    const Eigen::MatrixXd* rt = debias_active ? &debias.matrix() : nullptr;
+    const Eigen::MatrixXd* rt = debias_active ? &debias.matrix() : jensen.size() ? &jensen : nullptr;
     {
       int nonempty = 0;
       for (int k = 0; k < bins; ++k) nonempty += (moments.count[0][k] + moments.count[1][k]) > 0;
@@ -1166,6 +1215,30 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
       sys.exponent_weight = options.exponent_smoothness;
       sys.shoulder_weight = options.shoulder_prior;
       for (const auto& t : sys.exponent_triples) sys.exponent_upper.push_back(t[0] >= result.covered_levels.first);
+      if (options.shoulder_follows_emor_mean) {
+        const auto g0 = emor::inverseMean();
+        auto g0At = [&](int v) {
+          const double x = double(v) / (L - 1) * (emor::kSamples - 1);
+          const int i = std::min(static_cast<int>(x), emor::kSamples - 2);
+          return g0[i] + (x - i) * (g0[i + 1] - g0[i]);
+        };
+        auto logx = [L](int v) { return std::log(double(v) / (L - 1)); };
+        auto ell = [&](int a, int b) { return (std::log(g0At(b)) - std::log(g0At(a))) / (logx(b) - logx(a)); };
+        for (std::size_t i = 0; i < sys.exponent_triples.size(); ++i) {
+          const auto& t = sys.exponent_triples[i];
+          sys.shoulder_reference.push_back(sys.exponent_upper[i] ? ell(t[1], t[2]) - ell(t[0], t[1]) : 0.0);
+        }
+      }
+    };
+    // Exposure-ratio prior (CrfFitOptions::ratio_prior_sigma), in the units of the data rows: each bin's residual
+    // has the variance s² estimated from the fit without the prior, so the data rows and the prior row add up to
+    // −2 log posterior · s² / weight.
+    const bool ratio_prior = options.fit_ratio && options.ratio_prior_sigma > 0;
+    double residual_variance = 0;
+    auto setRatioPrior = [&](MomentSystem& sys) {
+      if (!(residual_variance > 0) || !(sys.weight > 0)) return;
+      sys.ratio_prior_scale = std::sqrt(residual_variance / sys.weight) / options.ratio_prior_sigma;
+      sys.ratio_prior_log_centre = std::log(options.initial_ratio);
     };
     ModelFit fit_g, fit_e;
     double ratio = options.initial_ratio;
@@ -1179,6 +1252,19 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
                                          options.prior_energy_factor);
         result.evaluations += fit_e.evaluations;
         result.iterations += fit_e.iterations;
+        if (ratio_prior && fit_e.valid && std::isfinite(fit_e.energy)) {
+          // what the images alone say, then the same fit with the prior: every later fit carries it
+          result.ratio_images_only = fit_e.ratio;
+          const double bins = static_cast<double>(full.h.rows());
+          residual_variance = fit_e.energy * bins / std::max(1.0, bins - emor_curve.dims() - 1);
+          setRatioPrior(full);
+          result.ratio_prior_scale = full.ratio_prior_scale;
+          const ModelFit with_prior = fitModelMomentsWithPrior(emor_curve, full, {}, ratio, options.fit_ratio,
+                                                               lm_iterations, options.prior_energy_factor);
+          result.evaluations += with_prior.evaluations;
+          result.iterations += with_prior.iterations;
+          if (with_prior.valid) fit_e = with_prior;
+        }
       }
       if (want_ggcm) {
         std::vector<std::vector<double>> starts;
@@ -1265,6 +1351,7 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
       for (int fold = 0; fold < 2; ++fold) {
         MomentSystem train = makeSystem(moments, rt, fold, omega, K, bin_level_bin);
         setExtrapolationPrior(train);
+        setRatioPrior(train);
         const MomentSystem test = makeSystem(moments, rt, 1 - fold, omega, K, bin_level_bin);
         if (train.h.rows() == 0 || test.h.rows() == 0) return std::numeric_limits<double>::quiet_NaN();
         const ModelFit f = fitModelMomentsWithPrior(curve, train, {whole.x}, whole.ratio, options.fit_ratio,

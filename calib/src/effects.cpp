@@ -973,24 +973,6 @@ NoiseTest noiseTest(const std::vector<cv::Mat>& I, const cv::Mat& valid, const L
   return nt;
 }
 
-// σ(v) on the fitter's level grid from the bins (linear between bin levels, constant outside).
-std::vector<double> sigmaPerLevel(const std::vector<double>& level, const std::vector<double>& sigma, int levels) {
-  std::vector<double> out(levels);
-  for (int v = 0; v < levels; ++v) {
-    const double x = static_cast<double>(v) / (levels - 1);
-    if (x <= level.front()) out[v] = sigma.front();
-    else if (x >= level.back()) out[v] = sigma.back();
-    else {
-      std::size_t j = 1;
-      while (j + 1 < level.size() && level[j] < x) ++j;
-      const double t = (x - level[j - 1]) / std::max(level[j] - level[j - 1], 1e-12);
-      out[v] = sigma[j - 1] + t * (sigma[j] - sigma[j - 1]);
-    }
-    out[v] = std::clamp(out[v], 0.0, 0.5);
-  }
-  return out;
-}
-
 // Index of the "scale" coefficient and the others in a fitted spec.
 struct Coefficients {
   double scale = 1, v1 = 0, v2 = 0, offset = 0;
@@ -1224,7 +1206,7 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
       }
       if (with_noise) {
         const int L = std::max(naturalLevels(Ic), naturalLevels(Bc));  // the fitter's level grid
-        fo.noise_sigma_per_level = sigmaPerLevel(noise_level[c], noise_sigma[c], L);
+        fo.noise_sigma_per_level = noiseSigmaPerLevel(noise_level[c], noise_sigma[c], L);
       }
       try {
         if (with_blur) {

@@ -43,4 +43,53 @@ NoiseEstimate estimateNoiseSigma(const cv::Mat& image, const NoiseEstimationOpti
   return est;
 }
 
+NoiseProfile estimateNoiseProfile(const cv::Mat& image, int max_bins, const NoiseEstimationOptions& options) {
+  options.check();
+  if (max_bins < 1) throw InvalidInput("noise estimation: max_bins must be positive");
+  const cv::Mat unit = toUnitGray(image);
+  if (unit.rows < 9 || unit.cols < 9) throw InvalidInput("noise estimation: image smaller than 9x9");
+  const cv::Mat mask = (cv::Mat_<double>(3, 3) << 1, -2, 1, -2, 4, -2, 1, -2, 1) / 6.0;
+  cv::Mat response, mean;
+  cv::filter2D(unit, response, CV_64F, mask, cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
+  cv::blur(unit, mean, cv::Size(7, 7), cv::Point(-1, -1), cv::BORDER_REFLECT);
+  std::vector<std::pair<double, double>> samples;  // (local mean, |response|)
+  samples.reserve(static_cast<std::size_t>(unit.rows) * unit.cols);
+  for (int y = 1; y < unit.rows - 1; ++y)
+    for (int x = 1; x < unit.cols - 1; ++x) samples.emplace_back(mean.at<double>(y, x), std::abs(response.at<double>(y, x)));
+  std::sort(samples.begin(), samples.end());
+  const int bins = std::clamp(static_cast<int>(samples.size()) / options.min_samples, 1, max_bins);
+  NoiseProfile profile;
+  for (int b = 0; b < bins; ++b) {
+    const std::size_t lo = samples.size() * b / bins, hi = samples.size() * (b + 1) / bins;
+    std::vector<double> a;
+    a.reserve(hi - lo);
+    for (std::size_t i = lo; i < hi; ++i) a.push_back(samples[i].second);
+    auto mid = a.begin() + static_cast<std::ptrdiff_t>(a.size() / 2);
+    std::nth_element(a.begin(), mid, a.end());
+    const double level = samples[(lo + hi) / 2].first;
+    if (!profile.level.empty() && level <= profile.level.back()) continue;  // a flat run of equal means
+    profile.level.push_back(level);
+    profile.sigma.push_back(1.4826 * *mid);
+  }
+  return profile;
+}
+
+std::vector<double> noiseSigmaPerLevel(const std::vector<double>& level, const std::vector<double>& sigma, int levels) {
+  if (level.empty() || level.size() != sigma.size()) throw InvalidInput("noise profile: levels and sigmas differ in size");
+  std::vector<double> out(levels);
+  for (int v = 0; v < levels; ++v) {
+    const double x = static_cast<double>(v) / (levels - 1);
+    if (x <= level.front()) out[v] = sigma.front();
+    else if (x >= level.back()) out[v] = sigma.back();
+    else {
+      std::size_t j = 1;
+      while (j + 1 < level.size() && level[j] < x) ++j;
+      const double t = (x - level[j - 1]) / std::max(level[j] - level[j - 1], 1e-12);
+      out[v] = sigma[j - 1] + t * (sigma[j] - sigma[j - 1]);
+    }
+    out[v] = std::clamp(out[v], 0.0, 0.5);
+  }
+  return out;
+}
+
 }  // namespace crfcal

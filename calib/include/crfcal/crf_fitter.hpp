@@ -41,12 +41,15 @@ enum class CrfObjective { seed_intensity, moments };
 enum class CrfOptimizer { nelder_mead, levenberg_marquardt };
 // none: I used as is. debias: errors-in-variables level functions g = R φ (σ of I estimated unless given).
 // denoise: an edge-preserving (bilateral, range 2σ) filter on I before building the mixtures.
-enum class NoiseHandling { none, debias, denoise };
+// jensen: the second-order correction g = φ − ½σ²φ'' (a local operator: Jensen's bias removed to O(σ⁴) without
+// the deconvolution's noise amplification).
+enum class NoiseHandling { none, debias, denoise, jensen };
 
 const char* toString(CrfModelChoice value);
 const char* toString(CrfObjective value);
 const char* toString(CrfOptimizer value);
 const char* toString(NoiseHandling value);
+NoiseHandling noiseHandlingFromString(const std::string& name);  // throws InvalidInput for an unknown name
 
 struct CrfFitOptions {
   CrfModelChoice model = CrfModelChoice::automatic;
@@ -56,6 +59,16 @@ struct CrfFitOptions {
   double tau2 = 0.2;     // Eq. 24: W = Imax − Imin where > τ2 (r ≠ 1)
   double initial_ratio = 1.0;  // r from EXIF (footnote 4) or given
   bool fit_ratio = true;       // seed: Eq. 25 alternation; moments: r estimated jointly with φ
+  // moments, r fitted: σ of a Gaussian prior on log r centred on initial_ratio (0: off, r from the images alone).
+  // φ^γ with r^γ fits a plain two-exposure pair equally well (the exponential ambiguity); only the blur
+  // inconsistency (Sec. 3) separates them, so with little blur the images barely determine r and the fit drifts
+  // along that valley. The prior row is scaled by the residual variance of the prior-free fit, so it is a posterior:
+  // a sharply determined r keeps the images' value, an undetermined one returns to EXIF. A width for real EXIF:
+  // nominal values are rounded to 1/3 stop (±1/6 stop on ISO and time of both shots alone give σ ≈ 0.13) and
+  // cameras re-meter (docs/RESULTS.md#studies, ratio: 4 % per bracket step, 0.20 on phone pairs), so 0.2
+  // (`calibrate --ratio-prior 0.2`). Off by default: measured, it does not move the biased low r of small-blur
+  // pairs (the data determine it firmly) and it made the vivo curves agree less (docs/RESULTS.md#calibrate).
+  double ratio_prior_sigma = 0;
   CrfObjective objective = CrfObjective::moments;
   CrfOptimizer optimizer = CrfOptimizer::levenberg_marquardt;  // for GGCM; EMoR is linear
   int multi_starts = 4;        // GGCM starts (EMoR projection + γ 2.2, 1.6, 3.0, 1.0)
@@ -80,12 +93,16 @@ struct CrfFitOptions {
   // extrapolation; the prior keeps the local gamma changing there the way the data show (zero for any x^γ) instead
   // of a cliff. 0: off.
   double exponent_smoothness = 1e-4;
-  // moments: above the covered levels the smoothness weight is replaced by this one where the local exponent falls,
-  // and by 0 where it rises. Real CRFs compress highlights (a shoulder: φ's local exponent rises towards x = 1, up to
-  // 4.5–19 on the ten Middlebury cameras) — a rise must stay free; a flattening φ above the data is the affine
-  // freedom at work, not the camera. Measured (docs/RESULTS.md#synthetic-benchmark): `bench synthetic` 0.0285/0.0308/0.0291 (no priors)
-  // → 0.0272/0.0305/0.0291; `bench pairs` stays ≤ 0.02 (a symmetric smoothness above the data raised it to 0.0217).
+  // moments: weight of the prior on the local exponent above the covered levels. Real CRFs compress highlights (a
+  // shoulder: φ's local exponent rises towards x = 1, up to 4.5–19 on the ten Middlebury cameras), so a symmetric
+  // smoothness there is wrong (it raised `bench pairs` to 0.0217); but leaving every rise free lets a pair whose
+  // data stop at x = 0.47 put all of φ's scale into a cliff above the data (φ(0.47) = 0.003 on a real phone pair).
   double shoulder_prior = 1e-1;
+  // true: above the data φ's local exponent changes as the EMoR mean curve g0's does (the measured average shoulder
+  // of 201 real responses), each change penalised with shoulder_prior. false: the earlier one-sided prior (a rise
+  // is free, a fall costs shoulder_prior). Measured (docs/RESULTS.md#calibrate): vivo green spread over [0, 1]
+  // 0.216 → 0.049, `bench pairs` r = 1 0.0192 → 0.0185.
+  bool shoulder_follows_emor_mean = true;
   // moments: the two priors above only break ties the data leave open. φ is fitted without them and with them; the
   // regularised fit is kept while its data energy is at most this factor times the unregularised one. Measured: on
   // noisy pairs the affine-equivalent curves differ by factors 0.9–2.6 (noise and the model's systematic misfit);
@@ -144,6 +161,8 @@ struct CrfFitResult {
   std::vector<double> inverse_crf;  // φ(i/1023), i = 0..1023
   double ratio = 1;                 // r (Eq. 4)
   double initial_ratio = 1;
+  double ratio_images_only = 0;     // with a ratio prior: r of the prior-free EMoR fit (what the images alone say)
+  double ratio_prior_scale = 0;     // with a ratio prior: the prior row's scale (0: the prior was not applied)
   double energy = 0;                // final objective (per unit weight)
   int iterations = 0;               // φ/r alternations or LM iterations
   int evaluations = 0;              // objective evaluations, all optimiser runs

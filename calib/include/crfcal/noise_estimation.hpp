@@ -5,6 +5,8 @@
 // Method: Immerkær's Laplacian-difference operator N = [1 −2 1; −2 4 −2; 1 −2 1] / 6 cancels locally linear
 // signal and maps white noise of std σ to std σ. The robust scale 1.4826 · median|N ⊗ I| is taken only over
 // pixels whose local mean lies well inside (0, 1), so that clipping at 0 and 1 does not shrink the estimate.
+#include <vector>
+
 #include <opencv2/core.hpp>
 
 namespace crfcal {
@@ -22,5 +24,18 @@ struct NoiseEstimate {
 
 // `image`: single channel CV_8U, CV_16U or float in [0,1].
 NoiseEstimate estimateNoiseSigma(const cv::Mat& image, const NoiseEstimationOptions& options = {});
+
+// Signal-dependent noise (real sensors: variance ≈ a·x + b): the same operator, its robust scale taken per bin of
+// the 7×7 local mean. Bins are equal-count quantiles of the local mean (at least `min_samples` pixels each, at
+// most `max_bins`); the level of a bin is its median local mean.
+struct NoiseProfile {
+  std::vector<double> level;  // increasing, intensities in [0,1]
+  std::vector<double> sigma;  // noise std at that level
+};
+NoiseProfile estimateNoiseProfile(const cv::Mat& image, int max_bins = 8, const NoiseEstimationOptions& options = {});
+
+// σ(v) on a grid of `levels` levels (x = v/(levels−1)) from a profile: linear between its levels, constant outside,
+// clamped to [0, 0.5].
+std::vector<double> noiseSigmaPerLevel(const std::vector<double>& level, const std::vector<double>& sigma, int levels);
 
 }  // namespace crfcal
