@@ -49,6 +49,8 @@ struct PairsArgs {
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.noise);
   bool fix_ratio = false;
+  bool always_fit_ratio = false;
+  std::string shoulder = PairCalibrationOptions{}.fit.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   bool pairs_only = false;
 };
 
@@ -162,6 +164,8 @@ int runPairs(const PairsArgs& args) {
             options.fit.ratio_prior_sigma = args.ratio_prior;
             options.fit.noise = noiseHandlingFromString(args.noise_handling);
             options.fit.fit_ratio = !args.fix_ratio;
+            options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
+            options.fit.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
             const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
             const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
             const double rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(truth));
@@ -246,6 +250,10 @@ const BenchRegistration registration(
           ->capture_default_str()
           ->check(CLI::IsMember({"jensen", "none", "debias", "denoise"}));
       command.add_flag("--fix-ratio", args->fix_ratio, "Keep r at the (deliberately off) EXIF value, as calibrate --fix-ratio");
+      command.add_option("--shoulder", args->shoulder, "Extrapolation above the data: rising-free or mean-camera (as calibrate)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"rising-free", "mean-camera"}));
+      command.add_flag("--always-fit-ratio", args->always_fit_ratio, "Fit r even below the blur radius that fixes it, as calibrate --always-fit-ratio");
       command.add_option("--ratio-prior", args->ratio_prior, "Sigma of the EXIF prior on log r (0: r from the images alone)")
           ->capture_default_str()
           ->check(CLI::NonNegativeNumber);

@@ -39,6 +39,9 @@ struct CalibrateArgs {
   bool no_white_balance = false;
   bool no_register = false;
   bool fix_ratio = false;
+  bool always_fit_ratio = false;
+  bool no_effects = false;
+  std::string shoulder = PairCalibrationOptions{}.fit.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;  // σ of log r around EXIF/--ratio
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.noise);
   bool quiet = false;
@@ -230,6 +233,9 @@ int runCalibrate(const CalibrateArgs& args) {
   options.register_pair = !args.no_register;
   options.fit.initial_ratio = ratio;
   options.fit.fit_ratio = !args.fix_ratio;
+  options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
+  options.effects.enabled = !args.no_effects;
+  options.fit.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
   options.fit.ratio_prior_sigma = args.ratio_prior;
   options.fit.noise = noiseHandlingFromString(args.noise_handling);
   options.fit.model = args.model == "ggcm" ? CrfModelChoice::ggcm
@@ -321,7 +327,12 @@ int runCalibrate(const CalibrateArgs& args) {
                                        {"sharp", pair.sharp.exposure.summary()},
                                        {"blurred", pair.blurred.exposure.summary()}};
   extra["exposure_ratio_used_as_seed"] = ratio;
+  extra["exposure_ratio_mode"] = args.fix_ratio                     ? "fixed (--fix-ratio)"
+                                : result.ratio_fixed_by_small_blur ? "fixed (blur too small to determine r)"
+                                                                   : "fitted";
   extra["exposure_ratio_per_channel"] = nlohmann::json::object();
+  extra["ambiguity_rise"] = nlohmann::json::object();  // CrfFitResult::ambiguity_rise per channel
+  for (const auto& [name, fit] : result.fits) extra["ambiguity_rise"][name] = fit.ambiguity_rise;
   for (const auto& [name, fit] : result.fits) extra["exposure_ratio_per_channel"][name] = fit.ratio;
   // the EXIF prior on log r (CrfFitOptions::ratio_prior_sigma) and what the images alone say, per channel
   if (options.fit.fit_ratio && options.fit.ratio_prior_sigma > 0) {
@@ -475,6 +486,17 @@ const CommandRegistration registration(
       command.add_flag("--fix-ratio", args->fix_ratio,
                        "Keep r at the EXIF/--ratio value instead of fitting it (weak blur leaves r and the curve's "
                        "exponent ambiguous: phi^g, r^g fit equally)");
+      command.add_flag("--always-fit-ratio", args->always_fit_ratio,
+                       "Fit r even when the blur is too small to determine it (kernel RMS radius < 1 px; by default r "
+                       "is then held at the EXIF/--ratio value)")
+          ->excludes("--fix-ratio");
+      command.add_option("--shoulder", args->shoulder,
+                         "Extrapolation of phi above the data: rising-free (the local exponent may rise freely) or "
+                         "mean-camera (it rises like the EMoR mean curve's)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"rising-free", "mean-camera"}));
+      command.add_flag("--no-effects", args->no_effects,
+                       "Skip the effect diagnostics (effects.hpp): faster; phi is the base fit of Eq. 4");
       command.add_option("--noise-handling", args->noise_handling,
                          "The sharp shot's noise in the fit: jensen (second-order correction of Jensen's bias), none, "
                          "debias (deconvolution), denoise (bilateral)")

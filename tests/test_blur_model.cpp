@@ -101,6 +101,15 @@ TEST(KernelValidation, CentroidIsTheShiftTheKernelApplies) {
   EXPECT_EQ(kernelCentroid(cv::Mat::zeros(3, 3, CV_64F)), cv::Point2d(0, 0));
 }
 
+TEST(KernelValidation, RmsRadiusIsTheSpreadAboutTheCentroid) {
+  cv::Mat delta(5, 5, CV_64F, cv::Scalar(0));
+  delta.at<double>(1, 3) = 1;  // off-centre: a shift is no blur
+  EXPECT_NEAR(kernelRmsRadius(delta), 0, 1e-12);
+  EXPECT_NEAR(kernelRmsRadius(boxKernel(3)), std::sqrt(2.0 / 3), 1e-12);  // offsets −1, 0, 1
+  EXPECT_NEAR(kernelRmsRadius(2 * boxKernel(2)), 0.5, 1e-12);              // scale-free; offsets ±½
+  EXPECT_EQ(kernelRmsRadius(cv::Mat::zeros(3, 3, CV_64F)), 0);
+}
+
 TEST(BlurModel, DeltaConvolvedWithAsymmetricKernelReproducesKernelCentred) {
   cv::Mat delta(31, 33, CV_64F, cv::Scalar(0));
   delta.at<double>(15, 16) = 1.0;

@@ -13,7 +13,9 @@
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/pair_input.hpp"
+#include "crfcal/kernel.hpp"
 #include "crfcal/pair_calibration.hpp"
+#include "crfcal/simulation.hpp"
 #include "test_support.hpp"
 
 namespace crfcal {
@@ -429,10 +431,59 @@ TEST(CalibrateCli, RawTruthBadInput) {
   EXPECT_NE(r.output.find("other.png"), std::string::npos) << r.output;
 }
 
+// A 3-px blur (RMS radius 0.82 px) cannot separate φ^γ, r^γ from φ, r: when the images' r then disagrees with EXIF,
+// r is held at the EXIF value unless asked.
+TEST(CalibrateSmallBlur, RatioIsHeldAtExifUnlessAlwaysFitted) {
+  SimulationOptions sim;
+  sim.ratio = 2;
+  sim.noise_variance = 1e-4;
+  const SimulationResult pair = simulatePair(0.45 * test::levinImage(1), GammaModel{2.2}, boxKernel(3), sim);
+  cv::Mat sharp, blurred;
+  pair.sharp.convertTo(sharp, CV_8U, 255);
+  pair.blurred.convertTo(blurred, CV_8U, 255);
+  PairCalibrationOptions options;
+  options.register_pair = false;
+  options.rgb = false;
+  options.effects.enabled = false;
+  options.fit.initial_ratio = 2.1;  // EXIF 5 % off
+  const PairCalibrationResult held = calibratePair(sharp, blurred, options);
+  EXPECT_TRUE(held.ratio_fixed_by_small_blur);
+  EXPECT_GT(std::abs(held.ratio_images_small_blur / 2.1 - 1), options.effects.ratio_tolerance);
+  EXPECT_DOUBLE_EQ(held.fits.at("G").ratio, 2.1);
+  bool warned = false;
+  for (const auto& w : held.warnings) warned |= w.find("held at 2.1") != std::string::npos;
+  EXPECT_TRUE(warned);
+  options.fix_ratio_when_blur_is_small = false;
+  const PairCalibrationResult fitted = calibratePair(sharp, blurred, options);
+  EXPECT_FALSE(fitted.ratio_fixed_by_small_blur);
+  EXPECT_NE(fitted.fits.at("G").ratio, 2.1);
+  // at r ≈ 1 the images give r by brightness alone (1^γ = 1): it agrees with EXIF and stays fitted
+  SimulationOptions equal = sim;
+  equal.ratio = 1;
+  const SimulationResult same = simulatePair(0.9 * test::levinImage(1), GammaModel{2.2}, boxKernel(3), equal);
+  same.sharp.convertTo(sharp, CV_8U, 255);
+  same.blurred.convertTo(blurred, CV_8U, 255);
+  options.fix_ratio_when_blur_is_small = true;
+  options.fit.initial_ratio = 1.04;
+  const PairCalibrationResult unit = calibratePair(sharp, blurred, options);
+  EXPECT_FALSE(unit.ratio_fixed_by_small_blur);
+  EXPECT_NEAR(unit.fits.at("G").ratio, 1, 0.02);
+  options.fit.initial_ratio = 2.1;
+  // a real blur keeps r free
+  const SimulationResult big = simulatePair(0.45 * test::levinImage(1), GammaModel{2.2}, test::levinKernel(3), sim);
+  big.sharp.convertTo(sharp, CV_8U, 255);
+  big.blurred.convertTo(blurred, CV_8U, 255);
+  options.fix_ratio_when_blur_is_small = true;
+  const PairCalibrationResult free_r = calibratePair(sharp, blurred, options);
+  EXPECT_GT(free_r.blur_radius, options.min_blur_radius);
+  EXPECT_FALSE(free_r.ratio_fixed_by_small_blur);
+  EXPECT_NE(free_r.fits.at("G").ratio, 2.1);
+}
+
 // Real handheld pairs of one phone (../shared/data/pairs/vivo_x6s; skipped without it): the three green curves must
-// agree over [0, 1]. Pair 2's data reach x = 0.47 only, so its φ(1) = 1 rests on the extrapolation above the data;
-// with every rise of the local exponent free there, its curve was φ(0.47) = 0.003 and the spread 0.216
-// (docs/RESULTS.md#calibrate); held to the EMoR mean's shoulder it is 0.05.
+// agree over [0, 1]. They spread 0.216 when pair 1's r was fitted from its 0.8 px blur (1.51 against EXIF 3.125);
+// held at EXIF by the small-blur rule (PairCalibrationOptions::fix_ratio_when_blur_is_small) 0.077
+// (docs/RESULTS.md#vivo).
 TEST(CalibrateRealPairs, OnePhonesThreeCurvesAgree) {
   const fs::path dir = test::sharedData() / "pairs" / "vivo_x6s";
   if (test::sharedData().empty() || !fs::exists(dir)) GTEST_SKIP() << "../shared/data absent";

@@ -252,7 +252,7 @@ TEST(CrfFit, ShoulderReferenceKeepsExactDataExact) {
   const GammaModel truth{2.2};
   const SimulationResult pair = simulatePair(0.2 * test::levinImage(2), truth, test::levinKernel(3), sim);
   CrfFitOptions options;
-  ASSERT_TRUE(options.shoulder_follows_emor_mean);
+  options.shoulder_follows_emor_mean = true;
   const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(3), options);
   EXPECT_LT(fit.covered_levels.second, 0.5 * (fit.levels - 1)) << fit.summary();
   EXPECT_LT(curveRmse(fit.model, truth), 5e-3) << fit.summary();

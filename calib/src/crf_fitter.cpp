@@ -7,6 +7,7 @@
 #include <limits>
 #include <mutex>
 #include <numeric>
+#include <span>
 #include <sstream>
 
 #include <Eigen/Cholesky>
@@ -111,7 +112,7 @@ std::string CrfFitResult::summary() const {
   s.precision(6);
   s << "phi: " << describe(model) << " (" << chosen << ", " << choice_reason << ")\n";
   s << "ratio r = " << ratio << " (initial " << initial_ratio << "), energy " << energy << ", iterations "
-    << iterations << ", evaluations " << evaluations << "\n";
+    << iterations << ", evaluations " << evaluations << ", ambiguity rise " << ambiguity_rise << "\n";
   for (const auto& c : candidates)
     s << "  candidate " << c.kind << ": energy " << c.energy << ", criterion " << c.criterion
       << (c.valid ? "" : " (invalid)") << ", r " << c.ratio << "\n";
@@ -512,6 +513,18 @@ struct MomentSystem {
   double ratio_prior_log_centre = 0;
   int levels() const { return static_cast<int>(h.cols()); }
 };
+
+// A curve sampled at x = i/(n−1) (n ≥ 2), linearly interpolated onto the L-level grid x = v/(L−1).
+std::vector<double> onLevelGrid(std::span<const double> table, int L) {
+  std::vector<double> f(L);
+  const int n = static_cast<int>(table.size());
+  for (int v = 0; v < L; ++v) {
+    const double x = double(v) / (L - 1) * (n - 1);
+    const int i = std::min(static_cast<int>(x), n - 2);
+    f[v] = table[i] + (x - i) * (table[i + 1] - table[i]);
+  }
+  return f;
+}
 
 // Nodes of the local-exponent terms: levels j·(L−1)/64, j = 1..64 (x = 0 has no logarithm).
 std::vector<int> exponentNodes(int L) {
@@ -1111,6 +1124,7 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
   std::vector<CrfCandidate> candidates;
   const auto t_opt = Clock::now();
 
+  MomentSystem full;  // moments: all the data (the ambiguity check below evaluates on it)
   if (seed_objective) {
     const auto t_mix = Clock::now();
     const LevelMixture mixture = LevelMixture::build(prep.sharp, kernel, prep.pixels);
@@ -1216,14 +1230,9 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
       sys.shoulder_weight = options.shoulder_prior;
       for (const auto& t : sys.exponent_triples) sys.exponent_upper.push_back(t[0] >= result.covered_levels.first);
       if (options.shoulder_follows_emor_mean) {
-        const auto g0 = emor::inverseMean();
-        auto g0At = [&](int v) {
-          const double x = double(v) / (L - 1) * (emor::kSamples - 1);
-          const int i = std::min(static_cast<int>(x), emor::kSamples - 2);
-          return g0[i] + (x - i) * (g0[i + 1] - g0[i]);
-        };
+        const std::vector<double> g0 = onLevelGrid(emor::inverseMean(), L);
         auto logx = [L](int v) { return std::log(double(v) / (L - 1)); };
-        auto ell = [&](int a, int b) { return (std::log(g0At(b)) - std::log(g0At(a))) / (logx(b) - logx(a)); };
+        auto ell = [&](int a, int b) { return (std::log(g0[b]) - std::log(g0[a])) / (logx(b) - logx(a)); };
         for (std::size_t i = 0; i < sys.exponent_triples.size(); ++i) {
           const auto& t = sys.exponent_triples[i];
           sys.shoulder_reference.push_back(sys.exponent_upper[i] ? ell(t[1], t[2]) - ell(t[0], t[1]) : 0.0);
@@ -1243,7 +1252,6 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
     ModelFit fit_g, fit_e;
     double ratio = options.initial_ratio;
     const int lm_iterations = std::max(20, options.max_evaluations / 10);
-    MomentSystem full;
     {
       full = makeSystem(moments, rt, -1, omega, K, bin_level_bin);
       setExtrapolationPrior(full);
@@ -1416,6 +1424,19 @@ CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const c
   }
   result.candidates = std::move(candidates);
   result.inverse_crf = sampleValidTable(result.model);
+  // Along the exponential ambiguity (φ^γ, r^γ) the energy is flat to first order for a plain two-exposure pair;
+  // only the blur inconsistency raises it. Relative rise at γ = 1 ± 0.1 (CrfFitResult::ambiguity_rise).
+  if (!seed_objective && best && full.h.rows() > 0 && result.energy > 0) {
+    const std::vector<double> f = onLevelGrid(result.inverse_crf, L);
+    const double e0 = momentEnergy(full, f, result.ratio);
+    double rise = kInf;
+    for (double gamma : {0.9, 1.1}) {
+      std::vector<double> fg(L);
+      for (int v = 0; v < L; ++v) fg[v] = std::pow(std::max(f[v], 0.0), gamma);
+      rise = std::min(rise, momentEnergy(full, fg, std::pow(result.ratio, gamma)) / e0 - 1);
+    }
+    result.ambiguity_rise = rise;
+  }
   if (!checkValidity(TableModel{result.inverse_crf}, kCurveSamples, 1e-6)) {  // belt and braces (e.g. NaN)
     result.model = ggcm::fromGamma(2.2, options.ggcm_degree);
     result.inverse_crf = sampleValidTable(result.model);

@@ -72,4 +72,12 @@ cv::Point2d kernelCentroid(const cv::Mat& kernel) {
   return {m.m10 / m.m00 - k.cols / 2, m.m01 / m.m00 - k.rows / 2};
 }
 
+double kernelRmsRadius(const cv::Mat& kernel) {
+  cv::Mat k;
+  kernel.convertTo(k, CV_64F);
+  const cv::Moments m = cv::moments(k);
+  if (!(m.m00 > 0)) return 0;
+  return std::sqrt(std::max(0.0, (m.mu20 + m.mu02) / m.m00));  // central second moments
+}
+
 }  // namespace crfcal

@@ -10,6 +10,24 @@
 #include "crfcal/error.hpp"
 
 namespace crfcal {
+namespace {
+
+// Immerkær's operator N ⊗ I (white noise of std σ → std σ, locally linear signal → 0) and the 7×7 local mean.
+struct NoiseResponse {
+  cv::Mat response, mean;
+};
+
+NoiseResponse noiseResponse(const cv::Mat& image) {
+  const cv::Mat unit = toUnitGray(image);
+  if (unit.rows < 9 || unit.cols < 9) throw InvalidInput("noise estimation: image smaller than 9x9");
+  const cv::Mat mask = (cv::Mat_<double>(3, 3) << 1, -2, 1, -2, 4, -2, 1, -2, 1) / 6.0;
+  NoiseResponse r;
+  cv::filter2D(unit, r.response, CV_64F, mask, cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
+  cv::blur(unit, r.mean, cv::Size(7, 7), cv::Point(-1, -1), cv::BORDER_REFLECT);
+  return r;
+}
+
+}  // namespace
 
 void NoiseEstimationOptions::check() const {
   if (!(clip_margin >= 0 && clip_margin < 0.5)) throw InvalidInput("noise estimation: clip_margin must be in [0, 0.5)");
@@ -18,17 +36,12 @@ void NoiseEstimationOptions::check() const {
 
 NoiseEstimate estimateNoiseSigma(const cv::Mat& image, const NoiseEstimationOptions& options) {
   options.check();
-  const cv::Mat unit = toUnitGray(image);
-  if (unit.rows < 9 || unit.cols < 9) throw InvalidInput("noise estimation: image smaller than 9x9");
-  const cv::Mat mask = (cv::Mat_<double>(3, 3) << 1, -2, 1, -2, 4, -2, 1, -2, 1) / 6.0;
-  cv::Mat response, mean;
-  cv::filter2D(unit, response, CV_64F, mask, cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
-  cv::blur(unit, mean, cv::Size(7, 7), cv::Point(-1, -1), cv::BORDER_REFLECT);
+  const NoiseResponse nr = noiseResponse(image);
   std::vector<double> inside, all;
-  for (int y = 1; y < unit.rows - 1; ++y) {
-    const double* r = response.ptr<double>(y);
-    const double* m = mean.ptr<double>(y);
-    for (int x = 1; x < unit.cols - 1; ++x) {
+  for (int y = 1; y < nr.response.rows - 1; ++y) {
+    const double* r = nr.response.ptr<double>(y);
+    const double* m = nr.mean.ptr<double>(y);
+    for (int x = 1; x < nr.response.cols - 1; ++x) {
       const double a = std::abs(r[x]);
       all.push_back(a);
       if (m[x] >= options.clip_margin && m[x] <= 1 - options.clip_margin) inside.push_back(a);
@@ -46,16 +59,12 @@ NoiseEstimate estimateNoiseSigma(const cv::Mat& image, const NoiseEstimationOpti
 NoiseProfile estimateNoiseProfile(const cv::Mat& image, int max_bins, const NoiseEstimationOptions& options) {
   options.check();
   if (max_bins < 1) throw InvalidInput("noise estimation: max_bins must be positive");
-  const cv::Mat unit = toUnitGray(image);
-  if (unit.rows < 9 || unit.cols < 9) throw InvalidInput("noise estimation: image smaller than 9x9");
-  const cv::Mat mask = (cv::Mat_<double>(3, 3) << 1, -2, 1, -2, 4, -2, 1, -2, 1) / 6.0;
-  cv::Mat response, mean;
-  cv::filter2D(unit, response, CV_64F, mask, cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
-  cv::blur(unit, mean, cv::Size(7, 7), cv::Point(-1, -1), cv::BORDER_REFLECT);
+  const NoiseResponse nr = noiseResponse(image);
   std::vector<std::pair<double, double>> samples;  // (local mean, |response|)
-  samples.reserve(static_cast<std::size_t>(unit.rows) * unit.cols);
-  for (int y = 1; y < unit.rows - 1; ++y)
-    for (int x = 1; x < unit.cols - 1; ++x) samples.emplace_back(mean.at<double>(y, x), std::abs(response.at<double>(y, x)));
+  samples.reserve(nr.response.total());
+  for (int y = 1; y < nr.response.rows - 1; ++y)
+    for (int x = 1; x < nr.response.cols - 1; ++x)
+      samples.emplace_back(nr.mean.at<double>(y, x), std::abs(nr.response.at<double>(y, x)));
   std::sort(samples.begin(), samples.end());
   const int bins = std::clamp(static_cast<int>(samples.size()) / options.min_samples, 1, max_bins);
   NoiseProfile profile;

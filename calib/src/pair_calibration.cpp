@@ -400,12 +400,15 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
     }
   }
 
+  CrfFitOptions fit_options = options.fit;
+  const double first_blur_radius = kernelRmsRadius(K);
+
   auto fitChannel = [&](const std::string& name, const cv::Mat& kernel_full) {
     // The smallest centred window holding the kernel's mass: the fitter dilates clipped regions and the frame
     // border by the kernel's window, so empty margins (the estimation window's, or a given file's) would only
     // cost pixels.
     const cv::Mat kernel = cropKernel(kernel_full, 0.0);
-    CrfFitOptions fo = options.fit;
+    CrfFitOptions fo = fit_options;
     fo.progress = [&](double f, const std::string& stage) { report("fit " + name, f, stage); };
     return fitInverseCrf(window_sharp.at(name), window_blurred.at(name), kernel, fo);
   };
@@ -415,6 +418,16 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
   {
     const auto tf = Clock::now();
     result.fits["G"] = fitChannel("G", K);
+    // With a blur too small to separate φ^γ, r^γ from φ, r the images cannot give r (log r moves with γ·log r):
+    // if theirs disagrees with EXIF / --ratio beyond the tolerance of nominal EXIF values, r is held at that value.
+    const double disagreement = std::abs(result.fits["G"].ratio / fit_options.initial_ratio - 1);
+    if (fit_options.fit_ratio && options.fix_ratio_when_blur_is_small && first_blur_radius < options.min_blur_radius &&
+        disagreement > options.effects.ratio_tolerance) {
+      result.ratio_images_small_blur = result.fits["G"].ratio;
+      fit_options.fit_ratio = false;
+      result.ratio_fixed_by_small_blur = true;
+      result.fits["G"] = fitChannel("G", K);
+    }
     fit_time += since(tf);
   }
   result.rounds.push_back({0, 0, 0, result.fits["G"].ratio, result.kernel.relative_residual});
@@ -461,11 +474,11 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
     ei.fits = result.fits;
     ei.kernel = K;
     ei.kernel_estimated = result.kernel_estimated;
-    ei.exif_ratio = options.fit.initial_ratio;
+    ei.exif_ratio = fit_options.initial_ratio;
     ei.centre = cv::Point2d((sharp.cols - 1) / 2.0 - window.x, (sharp.rows - 1) / 2.0 - window.y);
     ei.corner_radius = 0.5 * std::hypot(sharp.cols, sharp.rows);
     ei.valid = overlap(window);
-    ei.fit = options.fit;
+    ei.fit = fit_options;
     ei.kernel_options = options.kernel;
     try {
       result.effects = diagnoseEffects(ei, options.effects);
@@ -473,7 +486,7 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
         result.base_fits = result.fits;
         for (const auto& [name, fit] : result.effects.fits) {
           // A fixed r (--fix-ratio) is the user's constraint: an extended model that moved it is not adopted.
-          if (!options.fit.fit_ratio && std::abs(fit.ratio - options.fit.initial_ratio) > 1e-9 * options.fit.initial_ratio) {
+          if (!fit_options.fit_ratio && std::abs(fit.ratio - fit_options.initial_ratio) > 1e-9 * fit_options.initial_ratio) {
             result.warnings.push_back("channel " + name + ": the effects' refit changed the fixed r (" +
                                       std::to_string(fit.ratio) + "); kept the fit with the fixed r");
             continue;
@@ -498,17 +511,18 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
   }
   result.weights = result.fits["G"].pixels.used_mask;
   {
-    // Blur extent (RMS radius of the kernel about its centroid): with almost no blur the pair is a plain
-    // two-exposure pair, for which φ^γ with r^γ fits as well as φ with r (the exponential ambiguity); only the blur
-    // inconsistency (Sec. 3) separates them.
-    double m2 = 0;
-    const cv::Point2d c = kernelCentroid(K);
-    for (int y = 0; y < K.rows; ++y)
-      for (int x = 0; x < K.cols; ++x)
-        m2 += K.at<double>(y, x) * (std::pow(x - K.cols / 2 - c.x, 2) + std::pow(y - K.rows / 2 - c.y, 2));
-    result.blur_radius = std::sqrt(m2);
-    if (result.blur_radius < options.min_blur_radius && options.fit.fit_ratio) {
-      char buffer[300];
+    // Blur extent: with almost no blur only a weak blur inconsistency (Sec. 3) separates φ^γ, r^γ from φ, r.
+    result.blur_radius = kernelRmsRadius(K);
+    char buffer[400];
+    if (result.ratio_fixed_by_small_blur) {
+      std::snprintf(buffer, sizeof buffer,
+                    "the blur is small (kernel RMS radius %.2f px): phi^g with r^g fit alike, and the images' r (%.3g) "
+                    "disagrees with %.4g (EXIF or --ratio) by more than %.0f %%: r is held at %.4g "
+                    "(--always-fit-ratio to fit it)",
+                    first_blur_radius, result.ratio_images_small_blur, fit_options.initial_ratio,
+                    100 * options.effects.ratio_tolerance, fit_options.initial_ratio);
+      result.warnings.push_back(buffer);
+    } else if (result.blur_radius < options.min_blur_radius && fit_options.fit_ratio) {
       std::snprintf(buffer, sizeof buffer,
                     "the blur is small (kernel RMS radius %.2f px): phi and r are nearly ambiguous (phi^g with r^g fit "
                     "alike); the fitted r (%.3g) is weakly determined - consider fixing r to the EXIF value "

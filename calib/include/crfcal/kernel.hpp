@@ -35,4 +35,7 @@ cv::Mat kernelSupport(const cv::Mat& kernel);
 // (0, 0) for a kernel without mass.
 cv::Point2d kernelCentroid(const cv::Mat& kernel);
 
+// RMS radius of the kernel's mass about its centroid, pixels: the blur's extent (0 for a delta or no mass).
+double kernelRmsRadius(const cv::Mat& kernel);
+
 }  // namespace crfcal

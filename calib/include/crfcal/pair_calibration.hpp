@@ -34,7 +34,18 @@ struct PairCalibrationOptions {
   bool rgb = true;                   // fit R, G, B (else G only; grey input is always one channel "G")
   int rounds = 2;                    // kernel ↔ φ rounds after the first fit (Sec. 4 iterates φ and r; we add K)
   double saturated_frame_limit = 0.6;  // more than this fraction of an image clipped: "saturated frame"
-  double min_blur_radius = 1.0;      // kernel RMS radius below this (px): warn that r is weakly determined
+  // Kernel RMS radius (kernelRmsRadius) below which the blur cannot determine r: with almost no blur the pair is a
+  // plain two-exposure pair, for which φ^γ with r^γ fits as well as φ with r (the exponential ambiguity), and any
+  // systematic misfit (model, noise, JPEG) picks the γ. Measured (docs/RESULTS.md#calibrate, box blurs of 2–3 px,
+  // RMS radius 0.5–0.8 px, r = 4, EXIF 4 % off): a fitted r comes out at 0.42–1.00 × the truth (mean error 27 %,
+  // φ_G 0.07); r held at EXIF gives φ_G 0.006–0.02.
+  double min_blur_radius = 1.0;
+  // Below min_blur_radius (measured on the first kernel), if the first fit's r disagrees with fit.initial_ratio
+  // (EXIF or --ratio) by more than effects.ratio_tolerance (the tolerance of nominal EXIF values), r is held at
+  // fit.initial_ratio and a warning says so. Along the ambiguity log r moves by γ·log r, so near r = 1 the images
+  // still give r (brightness alone; measured at r = 1: holding an EXIF 4 % off costs φ 0.112 → 0.123), far from it
+  // they drift (r = 4: 0.62–0.70 × the truth). false: r is fitted anyway (only warned about).
+  bool fix_ratio_when_blur_is_small = true;
   double min_covered_span = 0.5;     // intensity span covered by a channel's data below this: warn (extrapolation)
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
@@ -62,6 +73,8 @@ struct PairCalibrationResult {
   std::map<std::string, CrfFitResult> fits;
   std::vector<CalibrationRound> rounds;
   double blur_radius = 0;                // RMS radius of the final kernel about its centroid, pixels
+  bool ratio_fixed_by_small_blur = false;  // r held at EXIF/--ratio (fix_ratio_when_blur_is_small)
+  double ratio_images_small_blur = 0;      // then: the r of the first, free fit that disagreed
   std::map<std::string, std::pair<double, double>> covered_range;  // per channel: intensities the data constrain
   cv::Rect fit_window;                   // region handed to the fitter (full-resolution coordinates)
   cv::Mat gamma_map;                     // Γ = B − I ⊗ K on G inside fit_window (CV_64F)
