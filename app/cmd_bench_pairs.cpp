@@ -253,7 +253,7 @@ const BenchRegistration registration(
       command.add_option("--shoulder", args->shoulder, "Extrapolation above the data: rising-free or mean-camera (as calibrate)")
           ->capture_default_str()
           ->check(CLI::IsMember({"rising-free", "mean-camera"}));
-      command.add_flag("--always-fit-ratio", args->always_fit_ratio, "Fit r even below the blur radius that fixes it, as calibrate --always-fit-ratio");
+      command.add_flag("--always-fit-ratio", args->always_fit_ratio, "Fit r even when a sub-pixel blur leaves it undetermined, as calibrate --always-fit-ratio");
       command.add_option("--ratio-prior", args->ratio_prior, "Sigma of the EXIF prior on log r (0: r from the images alone)")
           ->capture_default_str()
           ->check(CLI::NonNegativeNumber);

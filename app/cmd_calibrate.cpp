@@ -487,8 +487,8 @@ const CommandRegistration registration(
                        "Keep r at the EXIF/--ratio value instead of fitting it (weak blur leaves r and the curve's "
                        "exponent ambiguous: phi^g, r^g fit equally)");
       command.add_flag("--always-fit-ratio", args->always_fit_ratio,
-                       "Fit r even when the blur is too small to determine it (kernel RMS radius < 1 px; by default r "
-                       "is then held at the EXIF/--ratio value)")
+                       "Fit r even when the blur is too small to determine it (by default, with a kernel RMS radius "
+                       "< 1 px and the images' r more than 10 % from the EXIF/--ratio value, r is held at that value)")
           ->excludes("--fix-ratio");
       command.add_option("--shoulder", args->shoulder,
                          "Extrapolation of phi above the data: rising-free (the local exponent may rise freely) or "
