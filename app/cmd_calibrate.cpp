@@ -332,8 +332,10 @@ int runCalibrate(const CalibrateArgs& args) {
                                                                    : "fitted";
   extra["exposure_ratio_per_channel"] = nlohmann::json::object();
   extra["ambiguity_rise"] = nlohmann::json::object();  // CrfFitResult::ambiguity_rise per channel
-  for (const auto& [name, fit] : result.fits) extra["ambiguity_rise"][name] = fit.ambiguity_rise;
-  for (const auto& [name, fit] : result.fits) extra["exposure_ratio_per_channel"][name] = fit.ratio;
+  for (const auto& [name, fit] : result.fits) {
+    extra["exposure_ratio_per_channel"][name] = fit.ratio;
+    extra["ambiguity_rise"][name] = fit.ambiguity_rise;
+  }
   // the EXIF prior on log r (CrfFitOptions::ratio_prior_sigma) and what the images alone say, per channel
   if (options.fit.fit_ratio && options.fit.ratio_prior_sigma > 0) {
     extra["exposure_ratio_prior"] = {{"centre", ratio},

@@ -67,7 +67,7 @@ struct CrfFitOptions {
   // nominal values are rounded to 1/3 stop (±1/6 stop on ISO and time of both shots alone give σ ≈ 0.13) and
   // cameras re-meter (docs/RESULTS.md#studies, ratio: 4 % per bracket step, 0.20 on phone pairs), so 0.2
   // (`calibrate --ratio-prior 0.2`). Off by default: measured, it does not move the biased low r of small-blur
-  // pairs (the data determine it firmly) and it made the vivo curves agree less (docs/RESULTS.md#calibrate).
+  // pairs (the data determine it firmly) and it made the vivo curves agree less (docs/RESULTS.md#small-blur).
   double ratio_prior_sigma = 0;
   CrfObjective objective = CrfObjective::moments;
   CrfOptimizer optimizer = CrfOptimizer::levenberg_marquardt;  // for GGCM; EMoR is linear
@@ -95,9 +95,10 @@ struct CrfFitOptions {
   double exponent_smoothness = 1e-4;
   // moments: weight of the prior on the local exponent above the covered levels. Real CRFs compress highlights (a
   // shoulder: φ's local exponent rises towards x = 1, up to 4.5–19 on the ten Middlebury cameras), so a symmetric
-  // smoothness there is wrong (it raised `bench pairs` to 0.0217); but leaving every rise free lets a pair whose
-  // data stop at x = 0.47 put most of φ's scale into a steep rise above the data (a real phone pair: φ_G(0.47) =
-  // 0.055, 0.002 with r at EXIF) — see shoulder_follows_emor_mean.
+  // smoothness there is wrong (it raised `bench pairs` to 0.0217). With shoulder_follows_emor_mean = false a falling
+  // exponent costs this weight and a rising one is free: `bench synthetic` 0.0285/0.0308/0.0291 (no priors) →
+  // 0.0272/0.0305/0.0291 (docs/RESULTS.md#synthetic-benchmark). But then a pair whose data stop at x = 0.47 can put
+  // most of φ's scale into a steep rise above the data (a real phone pair: φ_G(0.47) = 0.055, 0.002 with r at EXIF).
   double shoulder_prior = 1e-1;
   // true: above the data φ's local exponent changes as the EMoR mean curve g0's does (the measured average shoulder
   // of 201 real responses), each difference penalised with shoulder_prior. false (default): the one-sided prior
@@ -168,7 +169,9 @@ struct CrfFitResult {
   double ratio_images_only = 0;     // with a ratio prior: r of the prior-free EMoR fit (what the images alone say)
   double ratio_prior_scale = 0;     // with a ratio prior: the prior row's scale (0: the prior was not applied)
   // moments: relative rise of the data energy when φ, r move to φ^γ, r^γ with γ = 0.9 or 1.1 (the smaller of the
-  // two). ~0: the blur does not separate the exponent from r (a plain two-exposure pair); large: it does.
+  // two). ~0: the blur does not separate the exponent from r (a plain two-exposure pair); large: it does. Negative
+  // when the fitted model, held by its priors, is not at the bottom of that valley. A diagnostic (measured: Levin
+  // kernels 0.8–31, box blurs of 2–7 px −0.25–1.2; docs/RESULTS.md#small-blur), not used for decisions.
   double ambiguity_rise = 0;
   double energy = 0;                // final objective (per unit weight)
   int iterations = 0;               // φ/r alternations or LM iterations

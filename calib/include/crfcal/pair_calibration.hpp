@@ -35,16 +35,16 @@ struct PairCalibrationOptions {
   int rounds = 2;                    // kernel ↔ φ rounds after the first fit (Sec. 4 iterates φ and r; we add K)
   double saturated_frame_limit = 0.6;  // more than this fraction of an image clipped: "saturated frame"
   // Kernel RMS radius (kernelRmsRadius) below which the blur cannot determine r: with almost no blur the pair is a
-  // plain two-exposure pair, for which φ^γ with r^γ fits as well as φ with r (the exponential ambiguity), and any
-  // systematic misfit (model, noise, JPEG) picks the γ. Measured (docs/RESULTS.md#calibrate, box blurs of 2–3 px,
-  // RMS radius 0.5–0.8 px, r = 4, EXIF 4 % off): a fitted r comes out at 0.42–1.00 × the truth (mean error 27 %,
-  // φ_G 0.07); r held at EXIF gives φ_G 0.006–0.02.
+  // plain two-exposure pair, for which φ^γ with r^γ fits as well as φ with r (the exponential ambiguity), and the
+  // noise of the sharp shot (Jensen's bias) tilts the fit towards a low r. Measured (docs/RESULTS.md#small-blur, box
+  // blurs of 2–3 px, RMS radius 0.5–0.8 px, r = 4, EXIF 4 % off): a fitted r is 0.40–0.99 × the truth (φ_G 0.101);
+  // held at EXIF, φ_G 0.019.
   double min_blur_radius = 1.0;
   // Below min_blur_radius (measured on the first kernel), if the first fit's r disagrees with fit.initial_ratio
   // (EXIF or --ratio) by more than effects.ratio_tolerance (the tolerance of nominal EXIF values), r is held at
   // fit.initial_ratio and a warning says so. Along the ambiguity log r moves by γ·log r, so near r = 1 the images
-  // still give r (brightness alone; measured at r = 1: holding an EXIF 4 % off costs φ 0.112 → 0.123), far from it
-  // they drift (r = 4: 0.62–0.70 × the truth). false: r is fitted anyway (only warned about).
+  // still give r from brightness and agree with EXIF (measured at r = 1: nothing held, φ 0.110 either way); at r = 2
+  // and 4 they drift (φ_G 0.084 → 0.028 and 0.101 → 0.028 with the hold). false: r is fitted anyway (only warned).
   bool fix_ratio_when_blur_is_small = true;
   double min_covered_span = 0.5;     // intensity span covered by a channel's data below this: warn (extrapolation)
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
