@@ -50,6 +50,8 @@ struct PairsArgs {
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.noise);
   bool fix_ratio = false;
   bool always_fit_ratio = false;
+  double irradiance_kernel_lambda = PairCalibrationOptions{}.irradiance_kernel_lambda;
+  bool unweighted_irradiance_kernel = false;
   std::string shoulder = PairCalibrationOptions{}.fit.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   bool pairs_only = false;
 };
@@ -166,6 +168,8 @@ int runPairs(const PairsArgs& args) {
             options.fit.fit_ratio = !args.fix_ratio;
             options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
             options.fit.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
+            options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
+            options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
             const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
             const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
             const double rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(truth));
@@ -257,6 +261,12 @@ const BenchRegistration registration(
       command.add_option("--ratio-prior", args->ratio_prior, "Sigma of the EXIF prior on log r (0: r from the images alone)")
           ->capture_default_str()
           ->check(CLI::NonNegativeNumber);
+      command.add_option("--irradiance-kernel-lambda", args->irradiance_kernel_lambda,
+                         "Sparsity weight of the irradiance-domain kernel rounds, as calibrate")
+          ->capture_default_str()
+          ->check(CLI::NonNegativeNumber);
+      command.add_flag("--unweighted-irradiance-kernel", args->unweighted_irradiance_kernel,
+                       "Irradiance-domain kernel rounds without the 1/phi'(B) weights, as calibrate (ablation)");
       command.add_flag("--pairs-only", args->pairs_only, "Only write the pairs (no calibration)");
       command.add_option("-o,--output", args->output, "Output directory")->required();
       return [args] { return runPairs(*args); };

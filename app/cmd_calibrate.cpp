@@ -41,6 +41,8 @@ struct CalibrateArgs {
   bool fix_ratio = false;
   bool always_fit_ratio = false;
   bool no_effects = false;
+  double irradiance_kernel_lambda = PairCalibrationOptions{}.irradiance_kernel_lambda;
+  bool unweighted_irradiance_kernel = false;
   std::string shoulder = PairCalibrationOptions{}.fit.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;  // σ of log r around EXIF/--ratio
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.noise);
@@ -235,6 +237,8 @@ int runCalibrate(const CalibrateArgs& args) {
   options.fit.fit_ratio = !args.fix_ratio;
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
   options.effects.enabled = !args.no_effects;
+  options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
+  options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
   options.fit.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
   options.fit.ratio_prior_sigma = args.ratio_prior;
   options.fit.noise = noiseHandlingFromString(args.noise_handling);
@@ -497,6 +501,12 @@ const CommandRegistration registration(
                          "mean-camera (it rises like the EMoR mean curve's)")
           ->capture_default_str()
           ->check(CLI::IsMember({"rising-free", "mean-camera"}));
+      command.add_option("--irradiance-kernel-lambda", args->irradiance_kernel_lambda,
+                         "Sparsity weight of the irradiance-domain kernel rounds (the first estimate keeps 0.03)")
+          ->capture_default_str()
+          ->check(CLI::NonNegativeNumber);
+      command.add_flag("--unweighted-irradiance-kernel", args->unweighted_irradiance_kernel,
+                       "Irradiance-domain kernel rounds without the 1/phi'(B) weights (ablation)");
       command.add_flag("--no-effects", args->no_effects,
                        "Skip the effect diagnostics (effects.hpp): faster; phi is the base fit of Eq. 4");
       command.add_option("--noise-handling", args->noise_handling,

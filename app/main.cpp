@@ -67,7 +67,9 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version exit 0; every command-line error exits 2 (README), whatever CLI11's own code for it.
+    const int code = app.exit(e);
+    return code == 0 ? kExitOk : kExitUsage;
   }
   try {
     for (auto& [command, run] : runners)

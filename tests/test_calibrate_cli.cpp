@@ -2,6 +2,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -11,6 +12,7 @@
 
 #include "crfcal/blur_model.hpp"
 #include "crfcal/curve_comparison.hpp"
+#include "crfcal/error.hpp"
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/pair_input.hpp"
 #include "crfcal/kernel.hpp"
@@ -130,6 +132,35 @@ TEST(CalibrateCli, FixRatioKeepsTheGivenRatio) {
   std::ifstream in(dir / "out" / "report.json");
   const auto report = nlohmann::json::parse(in);
   EXPECT_DOUBLE_EQ(report["exposure_ratio_per_channel"]["G"].get<double>(), 1.2);
+}
+
+// The irradiance-domain kernel rounds' ablation flags reach the pipeline (the weights and λ change the round's kernel),
+// and a negative λ is a command-line error.
+TEST(CalibrateCli, KernelRoundAblationFlags) {
+  ASSERT_TRUE(fs::exists(pairDir() / "sharp.jpg")) << "bundled pair missing";
+  test::TempDir dir;
+  const std::string pair = (pairDir() / "sharp.jpg").string() + " " + (pairDir() / "blurred.jpg").string();
+  auto roundKernel = [&](const std::string& flags, const std::string& name) {
+    const auto r = test::run(bin() + " calibrate -q " + pair + " --channels g --rounds 1 --no-effects " + flags +
+                             " -o " + (dir / name).string());
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    std::ifstream in(dir / name / "kernel.txt");
+    std::vector<double> k{std::istream_iterator<double>(in), std::istream_iterator<double>()};
+    return k;
+  };
+  const auto weighted = roundKernel("", "weighted");
+  const auto unweighted = roundKernel("--unweighted-irradiance-kernel --irradiance-kernel-lambda 0.03", "unweighted");
+  ASSERT_EQ(weighted.size(), unweighted.size());
+  ASSERT_FALSE(weighted.empty());
+  double difference = 0;
+  for (std::size_t i = 0; i < weighted.size(); ++i) difference += std::abs(weighted[i] - unweighted[i]);
+  EXPECT_GT(difference, 0.01);  // L1 distance of two kernels that each sum to 1
+  const auto bad = test::run(bin() + " calibrate -q " + pair + " --irradiance-kernel-lambda -1 -o " + (dir / "bad").string());
+  EXPECT_EQ(bad.exit_code, 2) << bad.output;
+  EXPECT_FALSE(fs::exists(dir / "bad"));
+  PairCalibrationOptions options;
+  options.irradiance_kernel_lambda = -0.1;
+  EXPECT_THROW(options.check(), InvalidInput);
 }
 
 TEST(CalibrateCli, MissingFile) {

@@ -81,6 +81,40 @@ TEST(KernelEstimation, HolesInTheMaskDoNotShrinkOrSmearTheKernel) {
   EXPECT_LT(std::hypot(k.centroid.x, k.centroid.y), 3.0) << k.summary();  // Levin 3's centroid is ≈ (1.1, 0.6)
 }
 
+// Weighted equations (the irradiance-domain rounds weight by 1/φ'(B)): a constant weight changes nothing (the priors
+// are relative to the data terms), and down-weighting the pixels whose errors are large keeps those errors out of
+// the kernel — here a quarter of B carries a strong error correlated with the image (like the amplified JPEG/chroma
+// errors of bright edges in the irradiance domain), which unweighted shrinks and smears the kernel.
+TEST(KernelEstimation, WeightsScaleOutAndDiscountNoisyEquations) {
+  const cv::Mat sharp = mosaic();
+  const cv::Mat truth = test::levinKernel(3);
+  const cv::Mat clean = convolve(sharp, truth);
+  KernelEstimationOptions options;
+  options.kernel_size = 31;
+  const KernelEstimate plain = estimateKernel(sharp, clean, {}, {}, options);
+  const KernelEstimate constant =
+      estimateKernel(sharp, clean, {}, {}, options, cv::Mat(sharp.size(), CV_64F, cv::Scalar(7.0)));
+  // (single-precision accumulation of the normal equations: agreement to float rounding)
+  EXPECT_LT(kernelRelativeError(constant.kernel, plain.kernel), 1e-4);
+  EXPECT_NEAR(constant.gain, plain.gain, 1e-4 * plain.gain);
+
+  // The corrupted quadrant: B there is the sharp image itself (no blur) scaled up — a large error, not noise.
+  cv::Mat corrupted = clean.clone();
+  const cv::Rect bad(0, 0, sharp.cols / 2, sharp.rows / 2);
+  cv::Mat(3.0 * sharp(bad)).copyTo(corrupted(bad));
+  cv::Mat weights(sharp.size(), CV_64F, cv::Scalar(1.0));
+  weights(bad).setTo(0.01);
+  const KernelEstimate unweighted = estimateKernel(sharp, corrupted, {}, {}, options);
+  const KernelEstimate weighted = estimateKernel(sharp, corrupted, {}, {}, options, weights);
+  const double e_unweighted = kernelShapeError(unweighted.kernel, truth), e_weighted = kernelShapeError(weighted.kernel, truth);
+  std::printf("corrupted quadrant: shape error unweighted %.3f, weighted %.3f\n", e_unweighted, e_weighted);
+  EXPECT_LT(e_weighted, 0.45) << weighted.summary();
+  EXPECT_LT(e_weighted, 0.6 * e_unweighted) << unweighted.summary() << " vs " << weighted.summary();
+  EXPECT_NEAR(weighted.gain, 1.0, 0.15) << weighted.summary();
+
+  EXPECT_THROW(estimateKernel(sharp, clean, {}, {}, options, cv::Mat(3, 3, CV_64F, cv::Scalar(1))), InvalidInput);
+}
+
 // Regions of a larger frame are estimated in their own crops: the same pixels give the same kernel.
 TEST(KernelEstimation, RegionOfAFrameEqualsTheCroppedImage) {
   const cv::Mat sharp = mosaic();

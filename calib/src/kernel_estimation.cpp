@@ -36,6 +36,7 @@ struct NormalEquations {
 // One gradient direction at one pyramid level: X = ∂I, Y = ∂B and the pixels p whose equation is used.
 struct Direction {
   cv::Mat X, Y;                   // CV_64F
+  cv::Mat W;                      // CV_64F weight of each pixel's equation (empty: 1)
   std::vector<cv::Point> pixels;  // selected equations
 };
 
@@ -74,9 +75,11 @@ double robustSigma(const cv::Mat& v, const cv::Mat& mask) {
 // energy of ∂I over the (2r+1)² window exceeds `texture_factor` times what the noise alone gives there (the
 // noise level from the image's own robust gradient statistics). Flat pixels add only the noise of ∂I to the
 // Gram matrix (errors in variables: a shrunk, spread kernel) and nothing to the cross term.
-Direction selectEquations(const cv::Mat& s, const cv::Mat& b, const cv::Mat& valid, const cv::Mat& region_mask, int dir,
-                          int r, const KernelEstimationOptions& options, int max_equations, std::uint64_t salt) {
+Direction selectEquations(const cv::Mat& s, const cv::Mat& b, const cv::Mat& valid, const cv::Mat& weights,
+                          const cv::Mat& region_mask, int dir, int r, const KernelEstimationOptions& options,
+                          int max_equations, std::uint64_t salt) {
   Direction d;
+  d.W = weights;
   cv::Mat okx, oky;
   forwardDifference(s, valid, dir, d.X, okx);
   forwardDifference(b, valid, dir, d.Y, oky);
@@ -153,6 +156,14 @@ void accumulate(const Direction& d, const std::vector<cv::Point>& offsets, Norma
       for (int i = 0; i < rows; ++i) {
         const cv::Point p = d.pixels[static_cast<std::size_t>(start + i)];
         y(i) = static_cast<float>(d.Y.at<double>(p.y, p.x));
+      }
+      if (!d.W.empty()) {
+        for (int i = 0; i < rows; ++i) {
+          const cv::Point p = d.pixels[static_cast<std::size_t>(start + i)];
+          const float w = static_cast<float>(d.W.at<double>(p.y, p.x));
+          A.row(i) *= w;
+          y(i) *= w;
+        }
       }
       const auto Ab = A.topRows(rows);
       G.setZero();
@@ -268,13 +279,15 @@ std::string KernelEstimate::summary() const {
 }
 
 KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in, const std::vector<cv::Rect>& regions_in,
-                              const cv::Mat& valid_in, const KernelEstimationOptions& options) {
+                              const cv::Mat& valid_in, const KernelEstimationOptions& options, const cv::Mat& weights_in) {
   options.check();
   if (sharp_in.empty() || blurred_in.empty()) throw InvalidInput("kernel estimation: empty image");
   if (sharp_in.size() != blurred_in.size())
     throw InvalidInput("kernel estimation: the sharp and blurred images differ in size");
   if (!valid_in.empty() && (valid_in.size() != sharp_in.size() || valid_in.type() != CV_8U))
     throw InvalidInput("kernel estimation: bad validity mask");
+  if (!weights_in.empty() && (weights_in.size() != sharp_in.size() || weights_in.type() != CV_64F))
+    throw InvalidInput("kernel estimation: bad weight map");
   std::vector<cv::Rect> regions = regions_in;
   const cv::Rect frame(0, 0, sharp_in.cols, sharp_in.rows);
   if (regions.empty()) regions.push_back(frame);
@@ -283,7 +296,7 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
   // Each region is processed in its own crop (the region plus the kernel's reach): only those pixels are ever
   // converted, resampled or scanned, whatever the size of the frame.
   struct Patch {
-    cv::Mat s, b, m;
+    cv::Mat s, b, m, w;
     cv::Rect region;  // in crop coordinates, full resolution
   };
   std::vector<Patch> patches;
@@ -296,6 +309,7 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
     p.s = toUnitGray(sharp_in(crop));
     p.b = toUnitGray(blurred_in(crop));
     p.m = valid_in.empty() ? cv::Mat(crop.size(), CV_8U, cv::Scalar(255)) : valid_in(crop).clone();
+    if (!weights_in.empty()) p.w = weights_in(crop).clone();
     p.region = rect - crop.tl();
     patches.push_back(std::move(p));
   }
@@ -358,8 +372,9 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
     std::mutex lock;
     for (std::size_t pi = 0; pi < patches.size(); ++pi) {
       const Patch& patch = patches[pi];
-      cv::Mat s = patch.s, b = patch.b, m = patch.m;
+      cv::Mat s = patch.s, b = patch.b, m = patch.m, w = patch.w;
       if (level > 0) {
+        if (!w.empty()) cv::resize(patch.w, w, cv::Size(), scale, scale, cv::INTER_AREA);
         cv::resize(patch.s, s, cv::Size(), scale, scale, cv::INTER_AREA);
         cv::resize(patch.b, b, s.size(), 0, 0, cv::INTER_AREA);
         cv::resize(patch.m, m, s.size(), 0, 0, cv::INTER_AREA);
@@ -369,7 +384,7 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
       region_mask(scaleRect(patch.region, scale) & cv::Rect(0, 0, s.cols, s.rows)).setTo(255);
       for (int dir = 0; dir < 2; ++dir) {
         const std::uint64_t salt = 0x9e3779b97f4a7c15ULL * (level + 1) + 0x632be59bd9b4e019ULL * pi + dir;
-        const Direction d = selectEquations(s, b, m, region_mask, dir, r, options, per_patch, salt);
+        const Direction d = selectEquations(s, b, m, w, region_mask, dir, r, options, per_patch, salt);
         accumulate(d, offsets, eq, lock);
       }
     }
@@ -427,7 +442,7 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
 }
 
 KernelEstimate estimateKernel(const cv::Mat& sharp, const cv::Mat& blurred, const KernelEstimationOptions& options) {
-  return estimateKernel(sharp, blurred, {}, {}, options);
+  return estimateKernel(sharp, blurred, {}, {}, options, {});
 }
 
 double kernelRelativeError(const cv::Mat& estimate, const cv::Mat& truth) {

@@ -89,6 +89,18 @@ cv::Mat denoiseForKernel(const cv::Mat& image) {
   return out;
 }
 
+// Weights of the irradiance-domain kernel equations: 1 / φ'(B). The pixels' errors (noise, JPEG, the chroma of
+// 4:2:0 edges) are intensity errors, which φ multiplies by its slope; unweighted, the bright edges, where a convex φ
+// is steepest, would dominate the regression with their amplified errors. φ' is a central difference over ±5 levels
+// of 8 bits (the fitted φ is smooth; the step only has to see past quantisation), floored at 1/50 of φ's mean slope
+// (which is 1: φ(0) = 0, φ(1) = 1) so that the flat dark toe of a convex φ cannot take all the weight.
+cv::Mat intensityScaleWeights(const ResponseCurve& curve, const cv::Mat& blurred) {
+  constexpr double step = 5.0 / 255, min_slope = 0.02;
+  const cv::Mat upper = curve.inverse(cv::min(blurred + step, 1.0)), lower = curve.inverse(cv::max(blurred - step, 0.0));
+  const cv::Mat slope = (upper - lower) / (2 * step);
+  return 1.0 / cv::max(slope, min_slope);
+}
+
 PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blurred, const PairCalibrationOptions& options,
                                        PairCalibrationResult result, bool registered, Clock::time_point t0);
 
@@ -104,6 +116,7 @@ void PairCalibrationOptions::check() const {
   if (max_fit_side < 128) throw InvalidInput("max_fit_side must be >= 128");
   if (!(min_blur_radius >= 0)) throw InvalidInput("min_blur_radius must be >= 0");
   if (!(min_covered_span >= 0 && min_covered_span <= 1)) throw InvalidInput("min_covered_span must be in [0, 1]");
+  if (!(irradiance_kernel_lambda >= 0)) throw InvalidInput("irradiance_kernel_lambda must be >= 0");
   effects.check();
 }
 
@@ -314,17 +327,20 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
 
   t0 = Clock::now();
   const double register_before_kernel = result.timings["register"];
-  auto estimate = [&](const cv::Mat& s, const cv::Mat& b, bool per_tile) {
+  // The first estimate (intensity domain, options.kernel) or an irradiance-domain round (its own λ and weights).
+  auto estimate = [&](const cv::Mat& s, const cv::Mat& b, bool per_tile, double lambda, const cv::Mat& weights) {
     KernelEstimationOptions ko = options.kernel;
+    ko.lambda = lambda;
     ko.progress = [&](double f, const std::string& stage) { report("kernel", f, stage); };
-    KernelEstimate k = estimateKernel(s, b, canvas.regions, canvas.usable, ko);
+    KernelEstimate k = estimateKernel(s, b, canvas.regions, canvas.usable, ko, weights);
     if (per_tile && canvas.regions.size() > 1) {
       result.tile_kernels.clear();
-      KernelEstimationOptions to = options.kernel;
+      KernelEstimationOptions to = ko;
+      to.progress = nullptr;
       to.throw_on_size_limit = false;
       for (const auto& r : canvas.regions) {
         try {
-          result.tile_kernels.push_back(estimateKernel(s, b, {r}, canvas.usable, to).kernel);
+          result.tile_kernels.push_back(estimateKernel(s, b, {r}, canvas.usable, to, weights).kernel);
         } catch (const InvalidInput&) {
           // a tile without usable edges: no per-tile kernel
         }
@@ -362,7 +378,8 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
     // Round 0: no φ yet. The sharp image's levels are mapped to the blurred one's by histogram matching (a monotone
     // map that removes most of the exposure and tone difference), so B ≈ g · (I' ⊗ K) holds approximately.
     auto intensityKernel = [&](bool per_tile) {
-      return estimate(histogramMatch(canvas.sharp_denoised, canvas.blurred, canvas.usable), canvas.blurred, per_tile);
+      return estimate(histogramMatch(canvas.sharp_denoised, canvas.blurred, canvas.usable), canvas.blurred, per_tile,
+                      options.kernel.lambda, cv::Mat());
     };
     result.kernel = intensityKernel(false);
     K = result.kernel.kernel;
@@ -436,9 +453,10 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
     // Irradiance domain (Eq. 4 is linear there): φ of the denoised I (denoising first avoids Jensen's bias of φ
     // applied to noise) against φ(B).
     const cv::Mat i_irr = curve.inverse(canvas.sharp_denoised), b_irr = curve.inverse(canvas.blurred);
+    const cv::Mat weights = options.weight_irradiance_kernel ? intensityScaleWeights(curve, canvas.blurred) : cv::Mat();
     KernelEstimate k;
     try {
-      k = estimate(i_irr, b_irr, round == options.rounds);
+      k = estimate(i_irr, b_irr, round == options.rounds, options.irradiance_kernel_lambda, weights);
     } catch (const InvalidInput& e) {
       result.warnings.push_back(std::string("irradiance-domain kernel round ") + std::to_string(round) +
                                 " failed (" + e.what() + "); kept the previous kernel");

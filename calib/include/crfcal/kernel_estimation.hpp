@@ -75,10 +75,13 @@ struct KernelRegion {
 
 // Estimates one kernel from the regions (normal equations summed over them). sharp/blurred: single-channel,
 // same size, any depth (integer types scaled to [0,1]); `valid` (optional CV_8U): pixels of B that may be used
-// (overlap, unsaturated). Throws InvalidInput for mismatched sizes, regions without texture, and — when
-// options.throw_on_size_limit — for a kernel that reaches the border of its window.
+// (overlap, unsaturated); `weights` (optional CV_64F, same size): each pixel's equation is multiplied by its weight
+// (weighted least squares: 1/σ of the pixel's error, e.g. 1/φ'(B) when both images are in the irradiance domain).
+// Throws InvalidInput for mismatched sizes, regions without texture, and — when options.throw_on_size_limit — for a
+// kernel that reaches the border of its window.
 KernelEstimate estimateKernel(const cv::Mat& sharp, const cv::Mat& blurred, const std::vector<cv::Rect>& regions,
-                              const cv::Mat& valid = {}, const KernelEstimationOptions& options = {});
+                              const cv::Mat& valid = {}, const KernelEstimationOptions& options = {},
+                              const cv::Mat& weights = {});
 
 // Convenience: the whole image as one region.
 KernelEstimate estimateKernel(const cv::Mat& sharp, const cv::Mat& blurred, const KernelEstimationOptions& options = {});
