@@ -142,7 +142,7 @@ void accumulate(const Direction& d, const std::vector<cv::Point>& offsets, Norma
     double yy = 0;
     Eigen::MatrixXf A(block, ns);
     Eigen::MatrixXf G(ns, ns);
-    Eigen::VectorXf y(block);
+    Eigen::VectorXf y(block), w(block);
     for (int bi = range.start; bi < range.end; ++bi) {
       const int start = bi * block, rows = std::min(block, total - start);
       for (int j = 0; j < ns; ++j) {
@@ -157,13 +157,13 @@ void accumulate(const Direction& d, const std::vector<cv::Point>& offsets, Norma
         const cv::Point p = d.pixels[static_cast<std::size_t>(start + i)];
         y(i) = static_cast<float>(d.Y.at<double>(p.y, p.x));
       }
-      if (!d.W.empty()) {
+      if (!d.W.empty()) {  // weighted least squares: each equation (row of A and y) scaled by its pixel's weight
         for (int i = 0; i < rows; ++i) {
           const cv::Point p = d.pixels[static_cast<std::size_t>(start + i)];
-          const float w = static_cast<float>(d.W.at<double>(p.y, p.x));
-          A.row(i) *= w;
-          y(i) *= w;
+          w(i) = static_cast<float>(d.W.at<double>(p.y, p.x));
         }
+        A.topRows(rows) = w.head(rows).asDiagonal() * A.topRows(rows);
+        y.head(rows).array() *= w.head(rows).array();
       }
       const auto Ab = A.topRows(rows);
       G.setZero();
@@ -309,7 +309,7 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
     p.s = toUnitGray(sharp_in(crop));
     p.b = toUnitGray(blurred_in(crop));
     p.m = valid_in.empty() ? cv::Mat(crop.size(), CV_8U, cv::Scalar(255)) : valid_in(crop).clone();
-    if (!weights_in.empty()) p.w = weights_in(crop).clone();
+    if (!weights_in.empty()) p.w = weights_in(crop);  // read only: a view
     p.region = rect - crop.tl();
     patches.push_back(std::move(p));
   }
