@@ -89,7 +89,7 @@ struct SyntheticArgs {
   std::vector<std::string> variants;
   int cases_limit = 0;
   std::vector<double> noise_vars;
-  std::string noise_units = "unit";  // unit: variances of I in [0,1]; 8bit: in 8-bit levels² (÷ 255²)
+  std::string noise_units = "unit";  // unit: I in [0,1], the seed's Sec. 5; 8bit: levels² (÷ 255²), noise-free control
   int threads = 2;
   double ratio = 1.0;
   bool quiet = false;
@@ -554,8 +554,8 @@ const BenchRegistration synthetic_registration(
                          "Directory of camera curve tables (<Camera>.csv); default: samples/camera_curves");
       command.add_option("--noise-vars", args->noise_vars, "Override the three noise variances (diagnostics)")->expected(3);
       command.add_option("--noise-units", args->noise_units,
-                         "Units of the noise variances: unit (I in [0,1], the literal reading of the seed) or 8bit "
-                         "(I in [0,255] levels)")
+                         "Units of the noise variances: unit (I in [0,1], the protocol the seed states in Sec. 5) or "
+                         "8bit (8-bit levels^2: sigma below one grey level, the noise-free control)")
           ->check(CLI::IsMember({"unit", "8bit"}))
           ->capture_default_str();
       command.add_option("--cases-limit", args->cases_limit, "Run only this many cases (spread over the grid)");

@@ -511,11 +511,10 @@ TEST(CalibrateSmallBlur, RatioIsHeldAtExifUnlessAlwaysFitted) {
   EXPECT_NE(free_r.fits.at("G").ratio, 2.1);
 }
 
-// Real handheld pairs of one phone (../shared/data/pairs/vivo_x6s; skipped without it): the three green curves must
-// agree over [0, 1]. They spread 0.216 when pair 1's r was fitted from its 0.8 px blur (1.51 against EXIF 3.125);
-// held at EXIF by the small-blur rule (PairCalibrationOptions::fix_ratio_when_blur_is_small) 0.077
-// (docs/RESULTS.md#vivo).
-TEST(CalibrateRealPairs, OnePhonesThreeCurvesAgree) {
+// Real handheld pairs of one phone (../shared/data/pairs/vivo_x6s; skipped without it): the RMS spread of the three
+// green curves over [0, 1] stays below 0.1. A regression guard, not the target (the three agreeing over [0, 1]),
+// which is not met: docs/RESULTS.md#vivo.
+TEST(CalibrateRealPairs, PhonePairsGreenCurvesWithinPointOneRms) {
   const fs::path dir = test::sharedData() / "pairs" / "vivo_x6s";
   if (test::sharedData().empty() || !fs::exists(dir)) GTEST_SKIP() << "../shared/data absent";
   std::vector<std::vector<double>> curves;

@@ -246,7 +246,7 @@ TEST(CrfFit, RatioPriorPullsOnlyAnUndeterminedRatio) {
 
 TEST(CrfFit, ShoulderReferenceKeepsExactDataExact) {
   // The data reach x ≈ 0.45 only, so the shoulder prior acts on half the curve; it only breaks ties, and exact
-  // data have none (the real-pair effect of the prior: CalibrateRealPairs.OnePhonesThreeCurvesAgree).
+  // data have none (the real-pair effect of the prior: CalibrateRealPairs.PhonePairsGreenCurvesWithinPointOneRms).
   SimulationOptions sim;
   sim.bits = 16;
   const GammaModel truth{2.2};
