@@ -34,8 +34,9 @@ Evaluation fixedRatioEvaluation(const EffectSearch& search, const Spec& fixed) {
       fo.progress = nullptr;
       fo.fit_ratio = false;
       fo.initial_ratio = in.exif_ratio;
-      fixed_curves[c] =
-          makeCurve(fitInverseCrf(in.sharp.at(in.channels[c]), in.blurred.at(in.channels[c]), search.K, fo).inverse_crf);
+      const cv::Mat& I = in.sharp.at(in.channels[c]);
+      const cv::Mat& B = in.blurred.at(in.channels[c]);
+      fixed_curves[c] = makeCurve(fitInverseCrf(I, B, search.K, fo).inverse_crf);
     }
     const Problem fixed_problem = search.problemAround(fixed_curves, std::vector<double>(nc, in.exif_ratio));
     return fixed_problem.evaluate(fixed);

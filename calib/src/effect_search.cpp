@@ -222,9 +222,10 @@ void refitWithSelectedModel(EffectSearch& search) {
   const bool noise_refit = search.noise_detected && in.fit.noise != NoiseHandling::none;
   bool ratio_refit = false;
   if (search.entry("exposure_ratio_mismatch").detected)
-    for (int c = 0; c < nc; ++c)
-      if (search.current_eval.full[c].ok && std::abs(in.fits.at(in.channels[c]).ratio / search.coef[c].scale - 1) > 0.02)
-        ratio_refit = true;
+    for (int c = 0; c < nc; ++c) {
+      const double fitter_ratio = in.fits.at(in.channels[c]).ratio;
+      if (search.current_eval.full[c].ok && std::abs(fitter_ratio / search.coef[c].scale - 1) > 0.02) ratio_refit = true;
+    }
   if (!(search.options.refit && (level_refit || noise_refit || ratio_refit))) return;
   std::vector<Curve> cur = search.curves;
   std::vector<Coefficients> cf = search.coef;

@@ -68,7 +68,8 @@ std::string selectDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, i
   const std::size_t step = std::max<std::size_t>(1, s.size() / static_cast<std::size_t>(max_samples));
   for (std::size_t i = 0; i < s.size(); i += step) {
     const cv::Point p = s.pos[i];
-    if (p.x - (K.cols - 1 - cx) < 0 || p.y - (K.rows - 1 - cy) < 0 || p.x + cx >= g.cols || p.y + cy >= g.rows) continue;
+    if (p.x - (K.cols - 1 - cx) < 0 || p.y - (K.rows - 1 - cy) < 0 || p.x + cx >= g.cols || p.y + cy >= g.rows)
+      continue;
     kd.idx.push_back(i);
   }
   if (kd.n() < 6 * m) return "too few samples for " + std::to_string(3 * m) + " kernel entries";
