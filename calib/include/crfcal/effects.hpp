@@ -60,6 +60,9 @@
 // keeps the fitted φ when the fitter uses no σ (noise handling none: the pixels are selected by B alone, so the
 // noise law only changes the weights; what remains is the second-order Jensen bias of φ(I), as for homoscedastic
 // noise of the same power) — the entry says so.
+// Code: the search's stages in effect_search.cpp, the shared residual problem in effect_problem.hpp, one file per
+// effect test (effect_<name>.cpp); adding an effect is one file, one registry line and its name
+// in effectNames() (effect_problem.hpp says how).
 #include <map>
 #include <string>
 #include <vector>
@@ -88,7 +91,8 @@ struct EffectOptions {
   int phi_terms = 4;             // every model (base too) re-fits φ by this many EMoR basis curves
   bool test_spatial_blur = true; // first-order kernel test (only when the pipeline estimated the kernel)
   bool refit = true;             // refit φ with the extended model when an effect is detected
-  int refit_rounds = 3;          // correct → refit → re-estimate rounds, final and after each effect the search selects (until φ moves < 5e-4)
+  int refit_rounds = 3;          // correct → refit → re-estimate rounds: final, and after each effect the search
+                                 // selects (until φ moves < 5e-4)
   void check() const;            // throws InvalidInput
 };
 

@@ -1,0 +1,739 @@
+#include "effect_problem.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+
+#include "crfcal/blur_model.hpp"
+#include "crfcal/emor.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/kernel.hpp"
+#include "crfcal/noise_estimation.hpp"
+
+namespace crfcal::effect {
+
+// ---- small helpers ------------------------------------------------------------------------------------------------
+
+cv::Mat store(const cv::Mat& unit_image, int depth) {
+  cv::Mat clamped = cv::max(cv::min(unit_image, 1.0), 0.0), out;
+  if (depth == CV_8U || depth == CV_16U) {
+    const double top = depth == CV_8U ? 255.0 : 65535.0;
+    clamped.convertTo(out, depth, top);
+  } else {
+    out = clamped;
+  }
+  return out;
+}
+
+std::string fmt(const char* format, double a, double b, double c) {
+  char buffer[240];
+  std::snprintf(buffer, sizeof buffer, format, a, b, c);
+  return buffer;
+}
+
+// ---- φ on the 1024-grid --------------------------------------------------------------------------------------------
+
+double Curve::derivative(double b) const {
+  const int n = static_cast<int>(phi.size());
+  const double s = std::clamp(b, 0.0, 1.0) * (n - 1);
+  const int i = std::clamp(static_cast<int>(s), 1, n - 2);
+  return (phi[i + 1] - phi[i - 1]) * (n - 1) / 2.0;
+}
+
+Curve makeCurve(std::vector<double> phi) {
+  phi.front() = 0;
+  phi.back() = 1;
+  for (std::size_t i = 1; i < phi.size(); ++i) phi[i] = std::clamp(phi[i], phi[i - 1], 1.0);
+  return Curve{ResponseCurve::fromSamples(phi), phi};
+}
+
+std::vector<double> adjustedPhi(const std::vector<double>& phi, const std::vector<double>& alpha) {
+  std::vector<double> out = phi;
+  for (std::size_t k = 0; k < alpha.size(); ++k) {
+    const auto h = emor::inverseBasis(static_cast<int>(k) + 1);
+    for (int i = 0; i < emor::kSamples; ++i) out[i] += alpha[k] * h[i];
+  }
+  out.front() = 0;
+  out.back() = 1;
+  for (std::size_t i = 1; i < out.size(); ++i) out[i] = std::clamp(out[i], out[i - 1], 1.0);
+  return out;
+}
+
+cv::Mat applyTable(const cv::Mat& image, const std::vector<double>& table) {
+  cv::Mat out(image.size(), CV_64F);
+  const int n = static_cast<int>(table.size());
+  for (int y = 0; y < image.rows; ++y) {
+    const double* a = image.ptr<double>(y);
+    double* o = out.ptr<double>(y);
+    for (int x = 0; x < image.cols; ++x) {
+      const double s = std::clamp(a[x], 0.0, 1.0) * (n - 1);
+      const int i = std::min(n - 2, static_cast<int>(s));
+      o[x] = table[i] + (s - i) * (table[i + 1] - table[i]);
+    }
+  }
+  return out;
+}
+
+std::vector<double> onLevels(std::span<const double> f, int levels) {
+  std::vector<double> out(levels);
+  const int n = static_cast<int>(f.size());
+  for (int v = 0; v < levels; ++v) {
+    const double s = static_cast<double>(v) / (levels - 1) * (n - 1);
+    const int i = std::min(n - 2, static_cast<int>(s));
+    out[v] = f[i] + (s - i) * (f[i + 1] - f[i]);
+  }
+  return out;
+}
+
+// ---- folds ---------------------------------------------------------------------------------------------------------
+
+Layout makeLayout(cv::Size size, int grid) {
+  Layout l;
+  l.grid = grid;
+  l.tile_map = cv::Mat(size, CV_32S);
+  l.half_map = cv::Mat(size, CV_8U);
+  for (int ty = 0; ty < grid; ++ty)
+    for (int tx = 0; tx < grid; ++tx) {
+      const int x0 = tx * size.width / grid, x1 = (tx + 1) * size.width / grid;
+      const int y0 = ty * size.height / grid, y1 = (ty + 1) * size.height / grid;
+      const cv::Rect t(x0, y0, x1 - x0, y1 - y0);
+      std::array<cv::Rect, 2> h;
+      if (t.width >= t.height) {
+        h[0] = cv::Rect(t.x, t.y, t.width / 2, t.height);
+        h[1] = cv::Rect(t.x + t.width / 2, t.y, t.width - t.width / 2, t.height);
+      } else {
+        h[0] = cv::Rect(t.x, t.y, t.width, t.height / 2);
+        h[1] = cv::Rect(t.x, t.y + t.height / 2, t.width, t.height - t.height / 2);
+      }
+      const int index = static_cast<int>(l.tiles.size());
+      l.tiles.push_back(t);
+      l.halves.push_back(h);
+      l.tile_map(t).setTo(index);
+      l.half_map(h[0]).setTo(0);
+      l.half_map(h[1]).setTo(1);
+    }
+  return l;
+}
+
+// ---- the residual samples ------------------------------------------------------------------------------------------
+
+namespace {
+
+// The images the samples are read from, per channel.
+struct LevelImages {
+  std::vector<cv::Mat> phiB, X;                // φ(B); φ(I) ⊗ K (debiased level function)
+  std::vector<std::vector<cv::Mat>> P, KH;     // per channel and EMoR term: a₀ K⊗h_k(I) − h_k(B); K⊗h_k(I)
+};
+
+LevelImages levelImages(const Prepared& p, const std::vector<Curve>& curves, const std::vector<double>& ratios,
+                        const cv::Mat& K, int phi_terms) {
+  const int nc = static_cast<int>(p.I.size());
+  LevelImages li;
+  li.phiB.resize(nc);
+  li.X.resize(nc);
+  li.P.resize(nc);
+  li.KH.resize(nc);
+  for (int c = 0; c < nc; ++c) {
+    li.phiB[c] = curves[c].curve.inverse(p.B[c]);
+    // The noisy I: its level functions debiased (noise_debias.hpp, E[g(I) | clean c] = f(c)), so that Jensen's
+    // bias of φ(I) and the clip of the noise at 0 and 1 do not pose as an effect (e.g. as an offset in the darks).
+    const NoiseDebias& debias = p.debias[c];
+    auto levelFunction = [&](std::span<const double> f) {
+      std::vector<double> g = onLevels(f, p.levels[c]);
+      if (!debias.identity()) g = debias.apply(g);
+      return applyTable(p.I[c], g);
+    };
+    li.X[c] = convolve(levelFunction(curves[c].phi), K);
+    for (int k = 1; k <= phi_terms; ++k) {
+      const auto span = emor::inverseBasis(k);
+      const std::vector<double> h(span.begin(), span.end());
+      li.KH[c].push_back(convolve(levelFunction(span), K));
+      li.P[c].push_back(ratios[c] * li.KH[c].back() - applyTable(p.B[c], h));
+    }
+  }
+  return li;
+}
+
+// h_k' on the 1024-grid (central differences, one-sided at the ends).
+std::vector<std::vector<double>> basisSlopes(int phi_terms) {
+  std::vector<std::vector<double>> slope(phi_terms, std::vector<double>(emor::kSamples));
+  for (int k = 0; k < phi_terms; ++k) {
+    const auto h = emor::inverseBasis(k + 1);
+    for (int i = 0; i < emor::kSamples; ++i) {
+      const int lo = std::max(0, i - 1), hi = std::min(emor::kSamples - 1, i + 1);
+      slope[k][i] = (h[hi] - h[lo]) * (emor::kSamples - 1) / (hi - lo);
+    }
+  }
+  return slope;
+}
+
+}  // namespace
+
+std::vector<Samples> collect(const Prepared& p, const std::vector<Curve>& curves, const std::vector<double>& ratios,
+                             const cv::Mat& K, const Layout& layout, const EffectOptions& options) {
+  const int nc = static_cast<int>(p.I.size());
+  const LevelImages li = levelImages(p, curves, ratios, K, options.phi_terms);
+  const int usable = cv::countNonZero(p.usable);
+  const int stride =
+      std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(usable) / options.max_samples))));
+  const int bx = (p.usable.cols + options.block - 1) / options.block;
+  const int fine = std::max(1, options.block / 2), fbx = (p.usable.cols + fine - 1) / fine;
+  std::vector<Samples> out(nc);
+  for (int c = 0; c < nc; ++c) {
+    out[c].X.resize(nc);
+    out[c].P.resize(li.P[c].size());
+    out[c].Dh.resize(li.P[c].size());
+    out[c].Hb.resize(li.P[c].size());
+    out[c].KH.resize(li.P[c].size());
+    out[c].phi = curves[c].phi;
+  }
+  const std::vector<std::vector<double>> slope = basisSlopes(options.phi_terms);
+  // A regular subsample of the usable pixels, every other row shifted by half the stride.
+  for (int y = 0; y < p.usable.rows; y += stride) {
+    const uchar* m = p.usable.ptr<uchar>(y);
+    for (int x = (y / stride) % 2 == 0 ? 0 : stride / 2; x < p.usable.cols; x += stride) {
+      if (!m[x]) continue;
+      const int tile = layout.tile_map.at<int>(y, x), half = layout.half_map.at<uchar>(y, x);
+      for (int c = 0; c < nc; ++c) {
+        Samples& s = out[c];
+        const double b = p.B[c].at<double>(y, x);
+        s.block.push_back((y / options.block) * bx + x / options.block);
+        s.fine.push_back((y / fine) * fbx + x / fine);
+        s.fold.push_back(layout.fold(tile, half));
+        s.d.push_back(curves[c].derivative(b));
+        const int bi = std::clamp(static_cast<int>(b * 1023 + 0.5), 0, 1023);
+        for (std::size_t k = 0; k < li.P[c].size(); ++k) {
+          s.Dh[k].push_back(slope[k][bi]);
+          s.Hb[k].push_back(emor::inverseBasis(static_cast<int>(k) + 1)[bi]);
+        }
+        s.Y.push_back(li.phiB[c].at<double>(y, x));
+        s.rho2.push_back(p.rho2.at<double>(y, x));
+        s.level.push_back(b);
+        s.pos.emplace_back(x, y);
+        for (int d = 0; d < nc; ++d) s.X[d].push_back(li.X[d].at<double>(y, x));
+        for (std::size_t k = 0; k < li.P[c].size(); ++k) {
+          s.P[k].push_back(li.P[c][k].at<double>(y, x));
+          s.KH[k].push_back(li.KH[c][k].at<double>(y, x));
+        }
+      }
+    }
+  }
+  return out;
+}
+
+// ---- the residual model --------------------------------------------------------------------------------------------
+
+Eigen::VectorXd Problem::linearStart(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
+                                     int cols) const {
+  double buffer[48], t;
+  const int terms = static_cast<int>(s.Dh.size());
+  Eigen::VectorXd theta = Eigen::VectorXd::Zero(cols);
+  const int lin = cols - terms;
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(lin, lin);
+  Eigen::VectorXd b = Eigen::VectorXd::Zero(lin);
+  for (auto i : use) {
+    row(s, i, spec, buffer, t);
+    const double w = weight(s, i, nullptr), w2 = w * w;
+    for (int a = 0; a < lin; ++a) {
+      b(a) += w2 * buffer[a] * t;
+      for (int c = 0; c <= a; ++c) A(a, c) += w2 * buffer[a] * buffer[c];
+    }
+  }
+  for (int a = 0; a < lin; ++a)
+    for (int c = a + 1; c < lin; ++c) A(a, c) = A(c, a);
+  if (lin > 0) {
+    A.diagonal().array() += 1e-12 * (A.diagonal().array().abs().maxCoeff() + 1e-30);
+    theta.head(lin) = A.ldlt().solve(b);
+  }
+  return theta;
+}
+
+// Levenberg–Marquardt on r_i = w_i(θ) (t_i − c_i·θ): w depends on the φ re-fit through φ'(B).
+void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
+                                 Eigen::VectorXd& theta) const {
+  double buffer[48], t;
+  const int cols = static_cast<int>(theta.size());
+  const int terms = static_cast<int>(s.Dh.size());
+  auto cost = [&](const Eigen::VectorXd& th) {
+    double sum = 0;
+    for (auto i : use) {
+      row(s, i, spec, buffer, t);
+      double pr = 0;
+      for (int a = 0; a < cols; ++a) pr += th(a) * buffer[a];
+      const double r = weight(s, i, &th) * (t - pr);
+      sum += r * r;
+    }
+    return sum;
+  };
+  double mu = 1e-3, current = cost(theta);
+  for (int iteration = 0; iteration < 40; ++iteration) {
+    Eigen::MatrixXd JtJ = Eigen::MatrixXd::Zero(cols, cols);
+    Eigen::VectorXd Jtr = Eigen::VectorXd::Zero(cols);
+    Eigen::VectorXd J(cols);
+    const Eigen::Index first = cols - terms;
+    for (auto i : use) {
+      row(s, i, spec, buffer, t);
+      double pr = 0;
+      for (int a = 0; a < cols; ++a) pr += theta(a) * buffer[a];
+      double d = s.d[i];
+      for (int k = 0; k < terms; ++k) d += theta(first + k) * s.Dh[k][i];
+      const bool floored = d < min_derivative_;
+      const double w = 1.0 / std::max(d, min_derivative_), r = w * (t - pr);
+      for (int a = 0; a < cols; ++a) J(a) = -w * buffer[a];
+      if (!floored)
+        for (int k = 0; k < terms; ++k) J(first + k) -= r * w * s.Dh[k][i];
+      JtJ.selfadjointView<Eigen::Lower>().rankUpdate(J);
+      Jtr += J * r;
+    }
+    JtJ = JtJ.selfadjointView<Eigen::Lower>();
+    bool improved = false;
+    for (int attempt = 0; attempt < 6 && !improved; ++attempt) {
+      Eigen::MatrixXd H = JtJ;
+      H.diagonal() += mu * JtJ.diagonal().cwiseMax(1e-30);
+      const Eigen::VectorXd step = H.ldlt().solve(-Jtr);
+      if (!step.allFinite()) break;
+      const Eigen::VectorXd next = theta + step;
+      const double c = cost(next);
+      if (c < current) {
+        improved = true;
+        const double drop = (current - c) / std::max(current, 1e-300);
+        theta = next;
+        current = c;
+        mu = std::max(mu / 3, 1e-9);
+        if (drop < 1e-9) iteration = 1000;
+      } else {
+        mu *= 4;
+      }
+    }
+    if (!improved) break;
+  }
+}
+
+// Least squares of the intensity-scaled residuals r_i = w_i(θ) (t_i − c_i·θ), Levenberg–Marquardt (w depends on
+// the φ re-fit; without φ terms one linear solve). Samples on B's plateau (clip level `clip`, B intensity) are
+// censored: they do not enter the fit.
+ChannelFit Problem::fitLevel(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx, double clip,
+                             const Eigen::VectorXd* start) const {
+  double buffer[48], t;
+  const int cols = row(s, idx[0], spec, buffer, t);
+  const int terms = static_cast<int>(s.Dh.size());
+  std::vector<std::size_t> use;
+  for (auto i : idx)
+    if (!(clip > 0 && s.level[i] >= clip)) use.push_back(i);  // clip > 1: none
+  ChannelFit f;
+  if (use.size() < 20) return f;
+  // Start: the given one, else the linear solution without the φ terms (weights of φ̂).
+  Eigen::VectorXd theta;
+  if (start && start->size() == cols && start->allFinite()) {
+    theta = *start;
+  } else {
+    theta = linearStart(s, spec, use, cols);
+    if (!theta.allFinite()) return f;
+  }
+  if (terms > 0) levenbergMarquardt(s, spec, use, theta);
+  f.theta = theta;
+  f.clip = clip;
+  f.ok = theta.allFinite();
+  return f;
+}
+
+ChannelFit Problem::fit(const Samples& s, const Spec& spec, int fold, const Eigen::VectorXd* start) const {
+  std::vector<std::size_t> idx;
+  for (std::size_t i = 0; i < s.size(); ++i)
+    if (fold < 0 || s.fold[i] == fold) idx.push_back(i);
+  ChannelFit best;
+  if (idx.size() < 20) return best;
+  if (!spec.clipping) return fitLevel(s, spec, idx, 0, start);
+  // Plateau level of B on a grid of its upper quantiles; the best (lowest in-sample error) is kept.
+  std::vector<double> y;
+  for (auto i : idx) y.push_back(s.level[i]);
+  std::sort(y.begin(), y.end());
+  std::vector<double> clips{2.0};  // 2: no plateau (the base model, nested)
+  for (double q : {1.0, 0.999, 0.995, 0.99, 0.98, 0.97, 0.95, 0.93, 0.9, 0.85, 0.8})
+    clips.push_back(y[static_cast<std::size_t>(q * (y.size() - 1))]);
+  clips.erase(std::unique(clips.begin(), clips.end()), clips.end());
+  double best_error = std::numeric_limits<double>::infinity();
+  for (double clip : clips) {
+    if (!(clip > 0)) continue;
+    const ChannelFit f = fitLevel(s, spec, idx, clip, start);
+    if (!f.ok) continue;
+    double error = 0;
+    for (auto i : idx) {
+      const double e = residual(s, i, spec, f);
+      error += e * e;
+    }
+    if (error < best_error) {
+      best_error = error;
+      best = f;
+    }
+  }
+  return best;
+}
+
+// Residual φ(B) − Ŷ in intensity units. Clipping: Ŷ = min(prediction, c), c = φ(clip) the plateau's irradiance
+// (φ re-fitted like everything else), for every sample — two-sided, so a plateau that is not there costs.
+double Problem::residual(const Samples& s, std::size_t i, const Spec& spec, const ChannelFit& f) const {
+  double buffer[48], t;
+  const int cols = row(s, i, spec, buffer, t);
+  double p = 0;
+  for (int a = 0; a < cols; ++a) p += f.theta(a) * buffer[a];
+  const double w = weight(s, i, &f.theta);
+  if (!(f.clip > 0 && f.clip <= 1)) return w * (t - p);
+  const int terms = static_cast<int>(s.Dh.size());
+  const Eigen::Index first = f.theta.size() - terms;
+  const int ci = std::clamp(static_cast<int>(f.clip * 1023 + 0.5), 0, 1023);
+  double u = s.Y[i], c = s.phi[ci];
+  for (int k = 0; k < terms; ++k) {
+    u += f.theta(first + k) * s.Hb[k][i];
+    c += f.theta(first + k) * emor::inverseBasis(k + 1)[ci];
+  }
+  const double predicted = u - (t - p);  // the model's irradiance before the clip
+  return w * (u - std::min(predicted, c));
+}
+
+// With mixing, the channels' fits are coupled: the other channels' X_d follow their own φ re-fits
+// (X_d + Σ α_dk K⊗h_k(I_d)), alternated three times.
+std::vector<ChannelFit> Problem::fitAll(const Spec& spec, int fold, std::vector<std::vector<double>>& xs,
+                                        const std::vector<Eigen::VectorXd>& starts) const {
+  std::vector<ChannelFit> fits(s_.size());
+  const int rounds = spec.mixing && !s_.empty() && !s_[0].KH.empty() ? 3 : 1;
+  xs.assign(s_.size(), {});
+  for (std::size_t d = 0; d < s_.size(); ++d) xs[d] = s_[d].X[d];
+  for (int round = 0; round < rounds; ++round) {
+    coupled_ = spec.mixing ? &xs : nullptr;
+    for (const auto& s : s_) {
+      const int c = self(s);
+      const Eigen::VectorXd* start = round == 0 && c < static_cast<int>(starts.size()) && starts[c].size() > 0
+                                         ? &starts[c]
+                                         : (round > 0 && fits[c].ok ? &fits[c].theta : nullptr);
+      fits[c] = fit(s, spec, fold, start);
+    }
+    coupled_ = nullptr;
+    if (round + 1 == rounds) break;
+    for (std::size_t d = 0; d < s_.size(); ++d) {
+      const Samples& s = s_[d];
+      if (!fits[d].ok) continue;
+      const Eigen::Index first = fits[d].theta.size() - static_cast<Eigen::Index>(s.KH.size());
+      for (std::size_t i = 0; i < s.size(); ++i) {
+        double x = s.X[d][i];
+        for (std::size_t k = 0; k < s.KH.size(); ++k)
+          x += fits[d].theta(first + static_cast<Eigen::Index>(k)) * s.KH[k][i];
+        xs[d][i] = x;
+      }
+    }
+  }
+  return fits;
+}
+
+// Parameters fitted on one fold, the error measured on the other, both ways.
+void Problem::heldoutResiduals(const Spec& spec, const Evaluation* warm, Evaluation& ev) const {
+  std::array<std::vector<ChannelFit>, 2> f;
+  std::array<std::vector<std::vector<double>>, 2> xs;
+  for (int fold = 0; fold < 2; ++fold) {
+    f[fold] = fitAll(spec, fold, xs[fold], warmStarts(warm, fold, spec));
+    ev.folds[fold] = f[fold];
+  }
+  for (const auto& s : s_) {
+    const int c = self(s);
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      const int held = 1 - s.fold[i];  // parameters from the other fold
+      if (!f[held][c].ok) continue;
+      coupled_ = spec.mixing ? &xs[held] : nullptr;
+      const double e = residual(s, i, spec, f[held][c]);
+      coupled_ = nullptr;
+      ev.block_error[s.block[i]] += e * e;
+      ev.fine_error[s.fine[i]] += e * e;
+      ev.residual[c][i] = e;
+      ev.total += e * e;
+      ++ev.count;
+    }
+  }
+}
+
+// warm: a nested smaller model's evaluation; its per-fold fits start the LM of this one (new parameters at 0),
+// so that the comparison reflects the added parameters, not where the optimiser stopped.
+Evaluation Problem::evaluate(const Spec& spec, bool heldout, const Evaluation* warm) const {
+  Evaluation ev;
+  ev.block_error.assign(blocks_, 0.0);
+  ev.fine_error.assign(fine_blocks_, 0.0);
+  ev.residual.resize(s_.size());
+  for (const auto& s : s_) ev.residual[self(s)].assign(s.size(), 0.0);
+  if (heldout) heldoutResiduals(spec, warm, ev);
+  std::vector<std::vector<double>> xs;
+  ev.full = fitAll(spec, -1, xs, warmStarts(warm, -1, spec));
+  ev.spec = spec;
+  return ev;
+}
+
+Eigen::VectorXd Problem::expand(const Spec& from, const Eigen::VectorXd& t, const Spec& to, int nc, int terms) const {
+  auto count = [&](const Spec& sp, int block) {
+    switch (block) {
+      case 0: return sp.fixed_scale ? 0 : 1;
+      case 1: return sp.vignetting ? 2 : 0;
+      case 2: return sp.offset ? 1 : 0;
+      case 3: return sp.mixing ? nc - 1 : 0;
+      default: return terms;
+    }
+  };
+  int cols = 0;
+  for (int b = 0; b < 5; ++b) cols += count(to, b);
+  Eigen::VectorXd out = Eigen::VectorXd::Zero(cols);
+  int i = 0, j = 0;
+  for (int b = 0; b < 5; ++b) {
+    const int nf = count(from, b), nt = count(to, b);
+    if (nf == nt)
+      for (int k = 0; k < nt; ++k) out(j + k) = t(i + k);
+    else if (b == 0 && nt == 1 && nf == 0)
+      out(j) = from.scale;  // a fixed scale becomes the start of the free one
+    i += nf;
+    j += nt;
+  }
+  return out;
+}
+
+std::vector<Eigen::VectorXd> Problem::warmStarts(const Evaluation* warm, int fold, const Spec& spec) const {
+  std::vector<Eigen::VectorXd> out(s_.size());
+  if (!warm) return out;
+  const auto& fits = fold < 0 ? warm->full : warm->folds[fold];
+  for (std::size_t c = 0; c < s_.size() && c < fits.size(); ++c)
+    if (fits[c].ok)
+      out[c] = expand(warm->spec, fits[c].theta, spec, static_cast<int>(s_.size()), static_cast<int>(s_[c].Dh.size()));
+  return out;
+}
+
+Coefficients coefficients(const Spec& spec, const ChannelFit& f, int self, int nc, int terms) {
+  Coefficients c;
+  int k = 0;
+  if (spec.fixed_scale) c.scale = spec.scale;
+  else c.scale = f.theta(k++);
+  if (spec.vignetting) {
+    c.v1 = f.theta(k++) / c.scale;
+    c.v2 = f.theta(k++) / c.scale;
+  }
+  if (spec.offset) c.offset = f.theta(k++);
+  c.mix.assign(nc, 0.0);
+  c.mix[self] = c.scale;
+  if (spec.mixing)
+    for (int d = 0; d < nc; ++d)
+      if (d != self) {
+        c.mix[d] = f.theta(k++);
+        c.mix[self] -= c.mix[d];
+      }
+  for (int t = 0; t < terms; ++t) c.alpha.push_back(f.theta(k++));
+  return c;
+}
+
+// An extended model explains the residuals only with physical parameters: a positive, finite exposure scale, an
+// offset and a corner gain within the frame's range. A runaway fit (r → 10⁷, r < 0, an offset of 10⁶ full scales)
+// can lower the held-out error by a fluke of the linearisation, and must not be reported as the camera's.
+bool physical(const Spec& spec, const Evaluation& ev, int nc, int terms) {
+  for (int c = 0; c < nc; ++c) {
+    if (!ev.full[c].ok) continue;
+    if (!ev.full[c].theta.allFinite()) return false;
+    const Coefficients k = coefficients(spec, ev.full[c], c, nc, terms);
+    if (!(k.scale > 0 && std::isfinite(k.scale))) return false;
+    if (!(std::abs(k.offset) < 1)) return false;
+    const double corner = 1 + k.v1 + k.v2;
+    if (spec.vignetting && !(corner > 0.1 && corner < 10)) return false;
+  }
+  return true;
+}
+
+// ---- tests of a held-out drop --------------------------------------------------------------------------------------
+
+Comparison compare(const std::vector<double>& base, const std::vector<double>& ext, double base_total,
+                   const std::vector<char>& used) {
+  std::vector<double> d;
+  double sum = 0;
+  for (std::size_t b = 0; b < base.size(); ++b)
+    if (used[b]) {
+      d.push_back(base[b] - ext[b]);
+      sum += d.back();
+    }
+  Comparison c;
+  if (d.size() < 4 || !(base_total > 0)) return c;
+  const double n = static_cast<double>(d.size()), mean = sum / n;
+  double var = 0;
+  for (double v : d) var += (v - mean) * (v - mean);
+  var /= (n - 1);
+  c.gain = sum / base_total;
+  const double t = var > 0 ? mean / std::sqrt(var / n) : (mean > 0 ? 1e9 : 0);
+  // Student's t with n − 1 degrees of freedom as the normal deviate of the same tail probability (Wallace's
+  // approximation z = t (1 − 1/(4ν)) / sqrt(1 + t²/(2ν))): few blocks need a larger t.
+  const double nu = n - 1;
+  c.z = t * (1 - 1 / (4 * nu)) / std::sqrt(1 + t * t / (2 * nu));
+  return c;
+}
+
+// The held-out drop Σ d_i over the affected samples against what noise alone would give for the same change of
+// prediction δ_i = e_base,i − e_ext,i: under "no effect" Var(Σ d_i) ≈ 4 σ² A Σ δ_i², σ² the base model's held-out
+// residual variance and A the residuals' design effect (variance inflation of block sums:
+// A = Σ_b (Σ_{i∈b} e_i)² / Σ e_i², 1 for independent residuals). z = Σ d / (2 σ sqrt(A Σ δ²)).
+Comparison scoreTest(const std::vector<Samples>& samples, const Evaluation& base, const Evaluation& ext,
+                     const std::vector<char>& affected, int blocks) {
+  Comparison c;
+  double e2 = 0, sum_d = 0, sum_delta2 = 0;
+  long n = 0;
+  std::vector<double> block_sum(blocks, 0.0);
+  for (std::size_t ch = 0; ch < samples.size(); ++ch) {
+    const Samples& s = samples[ch];
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      const double eb = base.residual[ch][i], ee = ext.residual[ch][i];
+      e2 += eb * eb;
+      ++n;
+      block_sum[s.block[i]] += eb;
+      if (!affected[s.fine[i]]) continue;
+      sum_d += eb * eb - ee * ee;
+      sum_delta2 += (eb - ee) * (eb - ee);
+    }
+  }
+  if (n == 0 || !(e2 > 0) || !(sum_delta2 > 0)) return c;
+  double A = 0;
+  for (double v : block_sum) A += v * v;
+  A = std::max(1.0, A / e2);
+  const double sigma2 = e2 / n;
+  c.gain = sum_d;
+  c.z = sum_d / (2 * std::sqrt(sigma2 * A * sum_delta2));
+  return c;
+}
+
+Comparison globalHeldoutTest(const EffectSearch& search, const Evaluation& without, const Evaluation& with) {
+  Comparison cmp = scoreTest(search.problem.samples(), without, with, search.used_fine, search.blocks);
+  cmp.gain = without.total > 0 ? cmp.gain / without.total : 0;
+  return cmp;
+}
+
+// ---- the search's shared state -------------------------------------------------------------------------------------
+
+EffectSearch::EffectSearch(const EffectInputs& inputs, const EffectOptions& effect_options)
+    : in(inputs), options(effect_options) {
+  for (const auto& name : effectNames()) {
+    EffectEntry e;
+    e.name = name;
+    e.threshold = options.min_z;
+    e.gain_threshold = name == "signal_dependent_noise" ? options.min_noise_contrast : options.min_gain;
+    report.entries.push_back(e);
+  }
+}
+
+EffectEntry& EffectSearch::entry(const std::string& name) {
+  for (auto& e : report.entries)
+    if (e.name == name) return e;
+  throw Error("unknown effect " + name);
+}
+
+Problem EffectSearch::problemAround(const std::vector<Curve>& phi, const std::vector<double>& r) const {
+  return Problem(collect(p, phi, r, K, layout, options), blocks, fine_blocks, options.min_derivative);
+}
+
+Spec EffectSearch::withSelected(const std::string& except) const {
+  Spec spec;
+  for (const auto& name : selected) {
+    if (name == except) continue;
+    for (const LevelEffect* effect : levelEffects())
+      if (name == effect->name) spec = effect->extend(spec);
+  }
+  return spec;
+}
+
+// ---- reading the pair ----------------------------------------------------------------------------------------------
+
+namespace {
+
+// Units, the level grid, φ and the debiasing of I's level functions, per channel.
+void readChannels(EffectSearch& search) {
+  const EffectInputs& in = search.in;
+  Prepared& p = search.p;
+  for (const auto& name : in.channels) {
+    if (!in.sharp.count(name) || !in.blurred.count(name) || !in.fits.count(name))
+      throw InvalidInput("effects: channel " + name + " missing");
+    p.I.push_back(unit(in.sharp.at(name)));
+    p.B.push_back(unit(in.blurred.at(name)));
+    p.depth.push_back(in.blurred.at(name).depth());
+    search.curves.push_back(makeCurve(in.fits.at(name).inverse_crf));
+    const int L = in.sharp.at(name).depth() == CV_8U ? 256 : 1024;
+    p.levels.push_back(L);
+    const double sigma = estimateNoiseSigma(p.I.back()).sigma;
+    NoiseDebiasOptions dopt;
+    dopt.levels = L;
+    dopt.sigma = sigma * (L - 1) > 0.25 ? std::min(sigma, 0.5) : 0.0;  // below a quarter level: no bias to remove
+    p.debias.emplace_back(dopt);
+  }
+}
+
+// Usable pixels: away (by the kernel's size) from saturation in either shot, inside the registration overlap and
+// the frame's inner part that the kernel sees whole.
+cv::Mat usablePixels(const EffectSearch& search) {
+  const Prepared& p = search.p;
+  const cv::Size size = search.size;
+  const int n = std::max(search.K.rows, search.K.cols);
+  cv::Mat bad = cv::Mat::zeros(size, CV_8U);
+  for (int c = 0; c < search.nc; ++c) {
+    bad |= (p.B[c] >= search.in.fit.saturation_high) | (p.B[c] <= search.in.fit.saturation_low);
+    // A noisy I touches 0 and 1 by noise alone (the debiased level functions model that clip, as in the fitter):
+    // only regions whose local median is saturated are saturated — the darkest regions pin an offset.
+    cv::Mat level = p.I[c];
+    if (!p.debias[c].identity()) {
+      cv::Mat f32, median;
+      p.I[c].convertTo(f32, CV_32F);
+      cv::medianBlur(f32, median, 5);
+      level = cv::Mat();
+      median.convertTo(level, CV_64F);
+    }
+    bad |= (level >= search.in.fit.saturation_high) | (level <= search.in.fit.saturation_low);
+  }
+  cv::Mat usable = ~dilateBy(bad, n);
+  if (!search.in.valid.empty()) usable &= search.in.valid;
+  const int m = n / 2 + 1;
+  cv::Mat inner = cv::Mat::zeros(size, CV_8U);
+  if (size.width > 2 * m && size.height > 2 * m)
+    inner(cv::Rect(m, m, size.width - 2 * m, size.height - 2 * m)).setTo(255);
+  usable &= inner;
+  return usable;
+}
+
+// ρ² = (distance to the optical centre / the normalising radius)².
+cv::Mat radiusSquared(cv::Size size, cv::Point2d centre, double radius) {
+  cv::Mat rho2(size, CV_64F);
+  for (int y = 0; y < size.height; ++y)
+    for (int x = 0; x < size.width; ++x) {
+      const double dx = (x - centre.x) / radius, dy = (y - centre.y) / radius;
+      rho2.at<double>(y, x) = dx * dx + dy * dy;
+    }
+  return rho2;
+}
+
+}  // namespace
+
+bool prepareProblem(EffectSearch& search) {
+  const EffectInputs& in = search.in;
+  const EffectOptions& options = search.options;
+  if (in.channels.empty() || in.kernel.empty()) throw InvalidInput("effects: no channels or no kernel");
+  search.nc = static_cast<int>(in.channels.size());
+  search.K = normalizeKernel(in.kernel);
+  search.terms = options.phi_terms;
+  readChannels(search);
+  Prepared& p = search.p;
+  const cv::Size size = search.size = p.B[0].size();
+  for (int c = 0; c < search.nc; ++c)
+    if (p.I[c].size() != size || p.B[c].size() != size) throw InvalidInput("effects: channel sizes differ");
+  p.usable = usablePixels(search);
+  search.centre = in.centre.x >= 0 ? in.centre : cv::Point2d((size.width - 1) / 2.0, (size.height - 1) / 2.0);
+  search.radius = in.corner_radius > 0 ? in.corner_radius : 0.5 * std::hypot(size.width, size.height);
+  p.rho2 = radiusSquared(size, search.centre, search.radius);
+  const int grid = options.grid > 0 ? options.grid : (std::min(size.width, size.height) < 600 ? 2 : 3);
+  search.layout = makeLayout(size, grid);
+  search.blocks =
+      ((size.width + options.block - 1) / options.block) * ((size.height + options.block - 1) / options.block);
+  const int fine_side = std::max(1, options.block / 2);
+  search.fine_blocks = ((size.width + fine_side - 1) / fine_side) * ((size.height + fine_side - 1) / fine_side);
+  for (int c = 0; c < search.nc; ++c)
+    if (in.channels[c] == "G") {
+      search.g_index = c;
+      break;
+    }
+  return cv::countNonZero(p.usable) >= 2000;
+}
+
+}  // namespace crfcal::effect

@@ -1,0 +1,358 @@
+#pragma once
+// Internal to the effect diagnostics (crfcal/effects.hpp describes the models, the folds and the criterion).
+// What every effect test works on:
+//   - the residual samples of the seed's model B = ψ(r · (φ(I) ⊗ K)) (Eq. 4) in the irradiance domain, per channel
+//     (Samples, collected by collect() from the Prepared pair and the current φ);
+//   - the two held-out folds (Layout) and the blocks of the design effect;
+//   - the linear residual model with φ re-fitted along the EMoR basis (Problem: fit, held-out evaluation, warm
+//     starts of nested models) and the tests of a held-out drop (scoreTest, compare);
+//   - the search's shared state (EffectSearch) and the correction + refit of the pair (refitPair, effect_refit.cpp).
+// An effect is one file effect_<name>.cpp: a LevelEffect (a term of the residual model, tested by the search in
+// effect_search.cpp) or a ModelCheck (its own model and statistic, run around the selected model). To add one:
+// write the file, add its line to levelEffects() or modelChecks() (effect_search.cpp) and its name to
+// effectNames() (effects.cpp, the report's order). A LevelEffect with new columns also adds them to Problem::row,
+// Problem::expand and coefficients() (the column layout below).
+#include <array>
+#include <cstddef>
+#include <map>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <Eigen/Dense>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "crfcal/effects.hpp"
+#include "crfcal/noise_debias.hpp"
+#include "crfcal/response_curve.hpp"
+
+namespace crfcal::effect {
+
+// ---- small helpers ------------------------------------------------------------------------------------------------
+
+inline double fullScale(const cv::Mat& m) { return m.depth() == CV_16U ? 65535.0 : m.depth() == CV_8U ? 255.0 : 1.0; }
+
+inline cv::Mat unit(const cv::Mat& m) {
+  cv::Mat out;
+  m.convertTo(out, CV_64F, 1.0 / fullScale(m));
+  return out;
+}
+
+inline cv::Mat dilateBy(const cv::Mat& mask, int n) {
+  cv::Mat out;
+  cv::dilate(mask, out, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(n, n)));
+  return out;
+}
+
+// Back to the input's storage (so that the refit sees the same level grid as the base fit).
+cv::Mat store(const cv::Mat& unit_image, int depth);
+
+std::string fmt(const char* format, double a, double b = 0, double c = 0);
+
+// ---- φ on the 1024-grid --------------------------------------------------------------------------------------------
+
+struct Curve {
+  ResponseCurve curve;
+  std::vector<double> phi;  // 1024 samples
+  double derivative(double b) const;
+};
+
+// A tabulated φ made valid (φ(0) = 0, φ(1) = 1, non-decreasing): fits can carry rounding-level dips at the ends.
+Curve makeCurve(std::vector<double> phi);
+
+// φ̂ + Σ α_k h_k on the 1024-grid, made a valid inverse response (φ(0) = 0, φ(1) = 1, non-decreasing).
+std::vector<double> adjustedPhi(const std::vector<double>& phi, const std::vector<double>& alpha);
+
+// A table over [0, 1] applied to a unit CV_64F image (linear interpolation).
+cv::Mat applyTable(const cv::Mat& image, const std::vector<double>& table);
+
+// f on the 1024-grid resampled to `levels` values f(v / (levels − 1)).
+std::vector<double> onLevels(std::span<const double> f, int levels);
+
+// ---- folds ---------------------------------------------------------------------------------------------------------
+
+// Folds: grid × grid tiles over the window, each split in two halves along its longer side.
+struct Layout {
+  int grid = 2;
+  std::vector<cv::Rect> tiles;
+  std::vector<std::array<cv::Rect, 2>> halves;
+  cv::Mat tile_map, half_map;  // CV_32S tile index, CV_8U half index
+  int fold(int tile, int half) const {
+    const int tx = tile % grid, ty = tile / grid;
+    return half ^ ((tx + ty) & 1);
+  }
+  int foldAt(int x, int y) const { return fold(tile_map.at<int>(y, x), half_map.at<uchar>(y, x)); }
+};
+
+Layout makeLayout(cv::Size size, int grid);
+
+// ---- the residual samples ------------------------------------------------------------------------------------------
+
+// Residual samples of one channel.
+struct Samples {
+  std::vector<int> block, fine, fold;  // 32×32 block, 16×16 block, fold
+  std::vector<double> d;      // φ̂'(B): irradiance → intensity scale of the residual
+  std::vector<std::vector<double>> Dh;  // h_k'(B): the slope of the φ re-fit (the scale follows φ, see weight())
+  std::vector<std::vector<double>> Hb;  // h_k(B)
+  std::vector<double> phi;              // φ̂ on the 1024-grid (the clip level's irradiance)
+  std::vector<double> Y;      // φ(B)
+  std::vector<double> rho2;   // (r / R)²
+  std::vector<double> level;  // B intensity
+  std::vector<std::vector<double>> X;  // per channel index: a-free prediction φ_d(I_d) ⊗ K
+  std::vector<std::vector<double>> P;  // φ columns a₀ K⊗h_k(I) − h_k(B) (EMoR basis h_k)
+  std::vector<std::vector<double>> KH; // K⊗h_k(I): how this channel's X moves with its φ re-fit (mixing)
+  std::vector<cv::Point> pos;
+  std::size_t size() const { return Y.size(); }
+};
+
+// The pair in unit levels, with what the residuals need beside φ.
+struct Prepared {
+  std::vector<cv::Mat> I, B;        // unit CV_64F per channel (original)
+  std::vector<int> depth;
+  std::vector<int> levels;          // level grid of I (256 for 8-bit data, else 1024)
+  std::vector<NoiseDebias> debias;  // per channel (identity when I is not noisy)
+  cv::Mat usable;                   // CV_8U
+  cv::Mat rho2;                     // CV_64F
+};
+
+// The samples of every channel around the given φ (curves) and exposure ratios; the level functions of the noisy
+// I are debiased (noise_debias.hpp).
+std::vector<Samples> collect(const Prepared& p, const std::vector<Curve>& curves, const std::vector<double>& ratios,
+                             const cv::Mat& K, const Layout& layout, const EffectOptions& options);
+
+// ---- the residual model --------------------------------------------------------------------------------------------
+
+// Which terms the model has. Column layout: [scale][v1 v2][offset][mix…][φ terms].
+struct Spec {
+  bool vignetting = false, offset = false, mixing = false, clipping = false;
+  bool fixed_scale = false;
+  double scale = 1;
+};
+
+struct ChannelFit {
+  Eigen::VectorXd theta;       // coefficients of the columns
+  double clip = 0;             // clipping level (irradiance); 0: none
+  bool ok = false;
+};
+
+struct Evaluation {
+  std::vector<double> block_error;  // held-out Σ e² per block (all channels)
+  std::vector<double> fine_error;   // the same per half-size block
+  std::vector<std::vector<double>> residual;  // held-out e per channel and sample (0 where no fold fit)
+  double total = 0;
+  long count = 0;
+  std::vector<ChannelFit> full;     // fitted on all samples (parameters for reporting/correction)
+  std::array<std::vector<ChannelFit>, 2> folds;  // fitted on each fold (warm starts of nested models)
+  Spec spec;
+};
+
+class Problem {
+ public:
+  Problem() = default;
+  Problem(std::vector<Samples> samples, int blocks, int fine_blocks, double min_derivative)
+      : s_(std::move(samples)), blocks_(blocks), fine_blocks_(fine_blocks), min_derivative_(min_derivative) {}
+  std::vector<Samples>& samples() { return s_; }
+  const std::vector<Samples>& samples() const { return s_; }
+
+  // Columns of the linear part. Column 0 is the scale column unless the scale is fixed.
+  int row(const Samples& s, std::size_t i, const Spec& spec, double* out, double& target) const {
+    const double x = s.X[self(s)][i];
+    int k = 0;
+    target = s.Y[i];
+    if (spec.fixed_scale) target -= spec.scale * x;
+    else out[k++] = x;
+    if (spec.vignetting) {
+      out[k++] = x * s.rho2[i];
+      out[k++] = x * s.rho2[i] * s.rho2[i];
+    }
+    if (spec.offset) out[k++] = 1.0;
+    if (spec.mixing)  // Ŷ_c = a X_c + Σ_{d≠c} m_cd (X_d − X_c): a = the row sum, the exposure ratio of a grey
+      for (int d = 0; d < static_cast<int>(s.X.size()); ++d)
+        if (d != self(s)) out[k++] = (coupled_ ? (*coupled_)[d][i] : s.X[d][i]) - x;
+    for (const auto& column : s.P) out[k++] = column[i];  // φ re-fitted with every model (nested, fair)
+    return k;
+  }
+
+  // 1 / φ'(B) of the re-fitted φ = φ̂ + Σ α_k h_k (α: the last coefficients): the residual stays in intensity units
+  // whatever the re-fit does to φ's scale (else shrinking φ over the data's range would "explain" everything).
+  double weight(const Samples& s, std::size_t i, const Eigen::VectorXd* theta) const {
+    double d = s.d[i];
+    if (theta && !s.Dh.empty()) {
+      const Eigen::Index first = theta->size() - static_cast<Eigen::Index>(s.Dh.size());
+      for (std::size_t k = 0; k < s.Dh.size(); ++k) d += (*theta)(first + static_cast<Eigen::Index>(k)) * s.Dh[k][i];
+    }
+    return 1.0 / std::max(d, min_derivative_);
+  }
+
+  // Least squares of the intensity-scaled residuals on the samples `idx`, B's plateau at `clip` censored.
+  ChannelFit fitLevel(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx, double clip,
+                      const Eigen::VectorXd* start = nullptr) const;
+  // One channel on one fold (−1: all samples); clipping: the plateau level chosen on a grid of B's quantiles.
+  ChannelFit fit(const Samples& s, const Spec& spec, int fold, const Eigen::VectorXd* start = nullptr) const;
+  // Residual φ(B) − Ŷ in intensity units (clipping: two-sided against the plateau).
+  double residual(const Samples& s, std::size_t i, const Spec& spec, const ChannelFit& f) const;
+  // Fits of every channel on one fold (−1: all samples), coupled through X_d with mixing.
+  std::vector<ChannelFit> fitAll(const Spec& spec, int fold, std::vector<std::vector<double>>& xs,
+                                 const std::vector<Eigen::VectorXd>& starts) const;
+  // Held-out errors of `spec` (both folds) and its fit on all samples; `warm`: a nested smaller model's evaluation.
+  Evaluation evaluate(const Spec& spec, bool heldout = true, const Evaluation* warm = nullptr) const;
+  // A nested model's θ mapped into a larger one's column layout.
+  Eigen::VectorXd expand(const Spec& from, const Eigen::VectorXd& t, const Spec& to, int nc, int terms) const;
+  std::vector<Eigen::VectorXd> warmStarts(const Evaluation* warm, int fold, const Spec& spec) const;
+
+  int self(const Samples& s) const { return static_cast<int>(&s - s_.data()); }
+
+ private:
+  // The weighted linear solution without the φ terms (weights of φ̂): the start of the Levenberg–Marquardt.
+  Eigen::VectorXd linearStart(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use, int cols) const;
+  void levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
+                          Eigen::VectorXd& theta) const;
+  void heldoutResiduals(const Spec& spec, const Evaluation* warm, Evaluation& ev) const;
+
+  std::vector<Samples> s_;
+  int blocks_ = 0, fine_blocks_ = 0;
+  mutable const std::vector<std::vector<double>>* coupled_ = nullptr;  // mixing: the other channels' re-fitted X
+  double min_derivative_ = 0.05;
+};
+
+// The fitted coefficients of a spec, by meaning.
+struct Coefficients {
+  double scale = 1, v1 = 0, v2 = 0, offset = 0;
+  std::vector<double> mix;    // per channel index (own = scale)
+  std::vector<double> alpha;  // φ re-fit along the EMoR basis
+};
+
+Coefficients coefficients(const Spec& spec, const ChannelFit& f, int self, int nc, int terms);
+
+// Whether an extended model's parameters are physical (a runaway fit is not an explanation).
+bool physical(const Spec& spec, const Evaluation& ev, int nc, int terms);
+
+// ---- tests of a held-out drop --------------------------------------------------------------------------------------
+
+struct Comparison {
+  double gain = 0, z = 0;
+};
+
+// Paired one-sided test over blocks: d_b = base_b − ext_b.
+Comparison compare(const std::vector<double>& base, const std::vector<double>& ext, double base_total,
+                   const std::vector<char>& used);
+
+// The score test of the held-out drop over the `affected` half-size blocks; `gain` returns Σ d (not normalised).
+Comparison scoreTest(const std::vector<Samples>& samples, const Evaluation& base, const Evaluation& ext,
+                     const std::vector<char>& affected, int blocks);
+
+// ---- the first-order kernel (effect_spatially_varying_blur.cpp fits it; the refit uses it per tile) -------------
+
+struct BlurTest {
+  bool ok = false;
+  std::string problem;
+  Comparison cmp;
+  double variation = 0;             // (‖K_x‖ + ‖K_y‖) / ‖K₀‖: relative kernel change from the centre to a corner
+  cv::Mat K0, Kx, Ky;               // fitted on all samples (unnormalised: the scale carries r)
+};
+
+// The first-order kernel at a point: K₀ + u K_x + v K_y, non-negative, normalised.
+cv::Mat kernelAt(const BlurTest& bt, double u, double v);
+
+// ---- the search's shared state -------------------------------------------------------------------------------------
+
+struct EffectSearch {
+  EffectSearch(const EffectInputs& inputs, const EffectOptions& effect_options);
+
+  const EffectInputs& in;
+  const EffectOptions& options;
+  EffectReport report;              // one entry per effectNames()
+
+  // The pair (prepareProblem, effect_problem.cpp).
+  int nc = 0, terms = 0;
+  cv::Mat K;                        // the normalised global kernel
+  Prepared p;
+  cv::Size size;
+  cv::Point2d centre;               // optical centre, window coordinates
+  double radius = 1;                // normalising radius of ρ
+  Layout layout;
+  int blocks = 0, fine_blocks = 0;  // 32×32 and 16×16 blocks of the window
+  int g_index = 0;                  // the channel reported (G, else the first)
+
+  // The model around which effects are tested (the search moves it).
+  std::vector<Curve> curves;        // φ per channel
+  std::vector<double> ratios;       // r per channel
+  Problem problem;                  // residuals around curves / ratios
+  std::vector<char> used_fine;      // half-size blocks holding samples
+  Spec current;                     // the selected model
+  Evaluation current_eval;
+  std::vector<std::string> selected;
+  std::vector<Coefficients> coef;   // the selected model's parameters (describeSelectedModel)
+
+  // What the model checks measured, for the final refit.
+  BlurTest blur;
+  std::vector<std::vector<double>> noise_level, noise_sigma;  // per channel: σ(v) bins of I (noise test)
+  bool noise_detected = false;
+
+  EffectEntry& entry(const std::string& name);
+  Problem problemAround(const std::vector<Curve>& phi, const std::vector<double>& r) const;
+  Spec withSelected(const std::string& except = {}) const;  // the selected effects except `except`
+};
+
+// Reads the pair into `search` (units, debiasing, usable pixels, ρ², folds). False: too few usable pixels.
+bool prepareProblem(EffectSearch& search);
+
+// One correction + refit with the extended model `spec`: the jointly re-fitted φ_ext = φ + Σ α_k h_k and the
+// parameters correct the pair, fitInverseCrf refits φ (same options; r fixed when fixed_ratio > 0). Empty on
+// failure. with_blur: per-tile fits with the first-order kernel; with_noise: σ(v) to the fitter.
+std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const Spec& spec,
+                                              const std::vector<Curve>& cur, const std::vector<Coefficients>& cf,
+                                              const std::vector<ChannelFit>& ff, bool with_blur, bool with_noise,
+                                              double fixed_ratio);
+
+// ---- the effects ---------------------------------------------------------------------------------------------------
+
+// The pair as the selected model corrects it before the refit (refitPair): each selected LevelEffect corrects it.
+struct PairCorrection {
+  const EffectSearch& search;
+  const std::vector<Curve>& ext;                  // φ_ext per channel (the corrections use it)
+  const std::vector<Coefficients>& coefficients;  // per channel
+  const std::vector<ChannelFit>& fits;            // per channel
+  std::vector<cv::Mat> Y;                         // φ_ext(B) per channel, to be corrected
+  std::vector<cv::Mat> sharp;                     // I as stored, per channel
+  std::vector<CrfFitOptions> fit_options;         // the refit's options per channel
+};
+
+// An effect carried by the residual model: the search adds it when it lowers the held-out error.
+struct LevelEffect {
+  const char* name;
+  Spec (*extend)(Spec spec);                     // the model with this effect
+  bool (*in)(const Spec& spec);                  // whether `spec` has it
+  const char* (*not_applicable)(const EffectSearch& search);  // why it cannot be tested here; nullptr: testable
+  // The statistic: the held-out drop from `without` (lacking it) to `with` (having it).
+  Comparison (*test)(const EffectSearch& search, const Evaluation& without, const Evaluation& with);
+  bool phi_change_below_plateau;                 // its φ change is measured below the fitted plateau only
+  // Its parameters in the entry, from the model `spec` (which has it) evaluated on all samples.
+  void (*describe)(const EffectSearch& search, const Spec& spec, const Evaluation& ev, EffectEntry& entry);
+  void (*correct)(PairCorrection& pair);         // the pair corrected for it (the model has it)
+};
+
+// An effect with its own model and statistic, checked around the selected model after the search.
+struct ModelCheck {
+  const char* name;
+  void (*run)(EffectSearch& search);             // fills entry(name)
+};
+
+// The statistic most level effects use: the score test over every block holding samples, relative to the
+// held-out error without the effect.
+Comparison globalHeldoutTest(const EffectSearch& search, const Evaluation& without, const Evaluation& with);
+
+const LevelEffect& vignettingEffect();
+const LevelEffect& blackLevelOffsetEffect();
+const LevelEffect& clippingEffect();
+const LevelEffect& channelMixingEffect();
+const ModelCheck& spatiallyVaryingBlurCheck();
+const ModelCheck& exposureRatioMismatchCheck();
+const ModelCheck& signalDependentNoiseCheck();
+
+// The registries (effect_search.cpp), in the order they are tested.
+const std::vector<const LevelEffect*>& levelEffects();
+const std::vector<const ModelCheck*>& modelChecks();
+
+}  // namespace crfcal::effect

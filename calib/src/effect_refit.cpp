@@ -1,0 +1,112 @@
+// The pair corrected by an extended model and φ refitted (fitInverseCrf): what the effect search moves φ with, and
+// where the reported φ of a detected effect comes from (effects.hpp).
+#include <algorithm>
+
+#include "crfcal/error.hpp"
+#include "crfcal/level_mixture.hpp"
+#include "crfcal/noise_estimation.hpp"
+#include "effect_problem.hpp"
+
+namespace crfcal::effect {
+
+namespace {
+
+CrfFitResult averageFits(const std::vector<CrfFitResult>& fits) {
+  CrfFitResult out = fits.front();
+  std::vector<double> phi(kCurveSamples, 0.0);
+  double total = 0, ratio = 0;
+  int used = 0;
+  for (const auto& f : fits) {
+    const double w = std::max(1, f.pixels.used);
+    for (int i = 0; i < kCurveSamples; ++i) phi[i] += w * f.inverse_crf[i];
+    ratio += w * f.ratio;
+    total += w;
+    used += f.pixels.used;
+  }
+  for (auto& v : phi) v /= total;
+  phi.front() = 0;
+  phi.back() = 1;
+  for (int i = 1; i < kCurveSamples; ++i) phi[i] = std::max(phi[i], phi[i - 1]);
+  out.inverse_crf = phi;
+  out.model = TableModel{phi};
+  out.ratio = ratio / total;
+  out.pixels.used = used;
+  out.chosen = "table";
+  out.choice_reason = "weighted mean of " + std::to_string(fits.size()) + " per-tile fits (per-tile kernels)";
+  return out;
+}
+
+// Per-tile fits, each with the first-order kernel at its centre, averaged.
+CrfFitResult perTileFit(const EffectSearch& search, const cv::Mat& I, const cv::Mat& B, const CrfFitOptions& fo) {
+  std::vector<CrfFitResult> tile_fits;
+  for (const auto& t : search.layout.tiles) {
+    const cv::Point2d tc(t.x + t.width / 2.0, t.y + t.height / 2.0);
+    const cv::Mat kt = kernelAt(search.blur, (tc.x - search.centre.x) / search.radius,
+                                (tc.y - search.centre.y) / search.radius);
+    const int m = std::max(kt.rows, kt.cols) / 2 + 1;
+    const cv::Rect big = cv::Rect(t.x - m, t.y - m, t.width + 2 * m, t.height + 2 * m) &
+                         cv::Rect(0, 0, search.size.width, search.size.height);
+    CrfFitOptions to = fo;
+    to.min_pixels = std::min(fo.min_pixels, 100);
+    try {
+      tile_fits.push_back(fitInverseCrf(I(big), B(big), kt, to));
+    } catch (const InvalidInput&) {
+      // a tile without edges: skipped
+    }
+  }
+  if (tile_fits.empty()) throw InvalidInput("no tile could be fitted");
+  return averageFits(tile_fits);
+}
+
+// The refit's options for one channel: the base fit's, started from the extended model's r (or with r fixed).
+CrfFitOptions refitOptions(const EffectSearch& search, const Coefficients& cf, const ChannelFit& ff,
+                           double fixed_ratio) {
+  CrfFitOptions fo = search.in.fit;
+  fo.progress = nullptr;
+  if (ff.ok && cf.scale > 0) fo.initial_ratio = cf.scale;  // the extended model's r as the start
+  if (fixed_ratio > 0) {
+    fo.initial_ratio = fixed_ratio;
+    fo.fit_ratio = false;
+  }
+  return fo;
+}
+
+}  // namespace
+
+std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const Spec& spec,
+                                              const std::vector<Curve>& cur, const std::vector<Coefficients>& cf,
+                                              const std::vector<ChannelFit>& ff, bool with_blur, bool with_noise,
+                                              double fixed_ratio) {
+  const int nc = search.nc;
+  const EffectInputs& in = search.in;
+  // φ_ext: the jointly re-fitted φ of the extended model; the corrections use it.
+  std::vector<Curve> ext(nc);
+  for (int c = 0; c < nc; ++c) ext[c] = ff[c].ok ? makeCurve(adjustedPhi(cur[c].phi, cf[c].alpha)) : cur[c];
+  PairCorrection pair{search, ext, cf, ff, {}, {}, {}};
+  for (int c = 0; c < nc; ++c) {
+    pair.Y.push_back(ext[c].curve.inverse(search.p.B[c]));
+    pair.sharp.push_back(in.sharp.at(in.channels[c]));
+    pair.fit_options.push_back(refitOptions(search, cf[c], ff[c], fixed_ratio));
+  }
+  for (const LevelEffect* effect : levelEffects())
+    if (effect->in(spec)) effect->correct(pair);
+  std::map<std::string, CrfFitResult> fits;
+  for (int c = 0; c < nc; ++c) {
+    const cv::Mat Bc = store(ext[c].curve.forward(cv::max(cv::min(pair.Y[c], 1.0), 0.0)), search.p.depth[c]);
+    const cv::Mat& Ic = pair.sharp[c];
+    CrfFitOptions& fo = pair.fit_options[c];
+    if (with_noise) {
+      const int L = std::max(naturalLevels(Ic), naturalLevels(Bc));  // the fitter's level grid
+      fo.noise_sigma_per_level = noiseSigmaPerLevel(search.noise_level[c], search.noise_sigma[c], L);
+    }
+    try {
+      fits[in.channels[c]] = with_blur ? perTileFit(search, Ic, Bc, fo) : fitInverseCrf(Ic, Bc, search.K, fo);
+    } catch (const InvalidInput&) {
+      fits.clear();
+      break;
+    }
+  }
+  return fits;
+}
+
+}  // namespace crfcal::effect

@@ -1,0 +1,197 @@
+// spatially_varying_blur: a kernel linear in the position, K₀ + u K_x + v K_y, vs one kernel K₀.
+// Handheld blur varies across the frame mostly through the camera's roll: the path of a point at p is the
+// translation plus θ(t)·R90·(p − c), so to first order in p the kernel is K(p) = K₀ + u K_x + v K_y (u, v the
+// position relative to the centre, over the half-diagonal). Base: one kernel K₀; extended: (K₀, K_x, K_y); both
+// estimated by least squares in the irradiance domain on the same fold (support: the global kernel's, dilated
+// by one pixel) from Y = φ(B) and the debiased φ(I), residuals weighted 1/φ'(B) like every other test. Tested
+// around the selected model's φ, only when the pipeline estimated the kernel.
+#include <algorithm>
+#include <cmath>
+
+#include "crfcal/kernel.hpp"
+#include "crfcal/kernel_estimation.hpp"
+#include "effect_problem.hpp"
+
+namespace crfcal::effect {
+
+cv::Mat kernelAt(const BlurTest& bt, double u, double v) {
+  cv::Mat k = bt.K0 + u * bt.Kx + v * bt.Ky;
+  k = cv::max(k, 0.0);
+  const double sum = cv::sum(k)[0];
+  if (!(sum > 0)) return normalizeKernel(bt.K0.clone() + 1e-12);
+  return k / sum;
+}
+
+namespace {
+
+// The least-squares problem of the kernel entries: rows are weighted samples, columns [K₀ | u K₀ | v K₀] entries.
+struct KernelDesign {
+  std::vector<cv::Point> support;   // kernel entries fitted
+  std::vector<std::size_t> idx;     // the samples used
+  Eigen::MatrixXd D;
+  Eigen::VectorXd t;
+  std::vector<int> fold;
+  int m() const { return static_cast<int>(support.size()); }
+  int n() const { return static_cast<int>(idx.size()); }
+
+  // Least squares on one fold (−1: all rows) with the first `cols` columns.
+  Eigen::VectorXd solve(int f, int cols) const {
+    std::vector<int> rows;
+    for (int r = 0; r < n(); ++r)
+      if (f < 0 || fold[r] == f) rows.push_back(r);
+    Eigen::MatrixXd Df(rows.size(), cols);
+    Eigen::VectorXd tf(rows.size());
+    for (std::size_t k = 0; k < rows.size(); ++k) {
+      Df.row(static_cast<Eigen::Index>(k)) = D.row(rows[k]).head(cols);
+      tf(static_cast<Eigen::Index>(k)) = t(rows[k]);
+    }
+    Eigen::MatrixXd A = Df.transpose() * Df;
+    A.diagonal().array() += 1e-9 * A.diagonal().mean() + 1e-300;
+    return Eigen::VectorXd(A.ldlt().solve(Df.transpose() * tf));
+  }
+};
+
+// The support (the global kernel's, dilated by one pixel) and the samples whose kernel footprint lies inside g.
+// Empty `problem`: ready to fill.
+std::string selectDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, int max_samples, KernelDesign& kd) {
+  double kmax = 0;
+  cv::minMaxLoc(K, nullptr, &kmax);
+  cv::Mat support = K > 0.01 * kmax;
+  cv::dilate(support, support, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
+  for (int y = 0; y < K.rows; ++y)
+    for (int x = 0; x < K.cols; ++x)
+      if (support.at<uchar>(y, x)) kd.support.emplace_back(x, y);
+  const int m = kd.m();
+  if (m > 500) return "kernel support too large for the first-order model (" + std::to_string(m) + " entries)";
+  const int cx = K.cols / 2, cy = K.rows / 2;
+  // A regular subsample of the samples (every k-th keeps both folds and all regions).
+  const std::size_t step = std::max<std::size_t>(1, s.size() / static_cast<std::size_t>(max_samples));
+  for (std::size_t i = 0; i < s.size(); i += step) {
+    const cv::Point p = s.pos[i];
+    if (p.x - (K.cols - 1 - cx) < 0 || p.y - (K.rows - 1 - cy) < 0 || p.x + cx >= g.cols || p.y + cy >= g.rows)
+      continue;
+    kd.idx.push_back(i);
+  }
+  if (kd.n() < 6 * m) return "too few samples for " + std::to_string(3 * m) + " kernel entries";
+  return {};
+}
+
+void fillDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, cv::Point2d centre, double radius,
+                double min_derivative, KernelDesign& kd) {
+  const int m = kd.m(), n = kd.n();
+  const int cx = K.cols / 2, cy = K.rows / 2;
+  kd.D.resize(n, 3 * m);
+  kd.t.resize(n);
+  Eigen::VectorXd w(n);
+  kd.fold.resize(n);
+  for (int r = 0; r < n; ++r) {
+    const std::size_t i = kd.idx[r];
+    const cv::Point p = s.pos[i];
+    const double u = (p.x - centre.x) / radius, v = (p.y - centre.y) / radius;
+    w(r) = 1.0 / std::max(s.d[i], min_derivative);
+    kd.t(r) = w(r) * s.Y[i];
+    kd.fold[r] = s.fold[i];
+    for (int j = 0; j < m; ++j) {
+      // convolve(): out(p) = Σ_j K(j) in(p − (j − c))
+      const double a = w(r) * g.at<double>(p.y - (kd.support[j].y - cy), p.x - (kd.support[j].x - cx));
+      kd.D(r, j) = a;
+      kd.D(r, m + j) = u * a;
+      kd.D(r, 2 * m + j) = v * a;
+    }
+  }
+}
+
+BlurTest spatialBlurTest(const Samples& s, const cv::Mat& g, const cv::Mat& K, cv::Point2d centre, double radius,
+                         int blocks, double min_derivative, int max_samples) {
+  BlurTest bt;
+  KernelDesign kd;
+  bt.problem = selectDesign(s, g, K, max_samples, kd);
+  if (!bt.problem.empty()) return bt;
+  fillDesign(s, g, K, centre, radius, min_derivative, kd);
+  const int m = kd.m(), n = kd.n();
+  std::array<Eigen::VectorXd, 2> base, ext;
+  for (int f = 0; f < 2; ++f) {
+    base[f] = kd.solve(f, m);
+    ext[f] = kd.solve(f, 3 * m);
+    if (!base[f].allFinite() || !ext[f].allFinite()) {
+      bt.problem = "kernel fit failed";
+      return bt;
+    }
+  }
+  // Held-out residuals and the score test of the drop (see scoreTest).
+  double e2 = 0, sum_d = 0, sum_delta2 = 0, total = 0;
+  std::vector<double> block_sum(blocks, 0.0);
+  for (int r = 0; r < n; ++r) {
+    const int held = 1 - kd.fold[r];
+    const double eb = kd.t(r) - kd.D.row(r).head(m).dot(base[held]);
+    const double ee = kd.t(r) - kd.D.row(r).dot(ext[held]);
+    e2 += eb * eb;
+    sum_d += eb * eb - ee * ee;
+    sum_delta2 += (eb - ee) * (eb - ee);
+    block_sum[s.block[kd.idx[r]]] += eb;
+  }
+  total = e2;
+  if (!(e2 > 0) || !(sum_delta2 > 0)) {
+    bt.problem = "no residual";
+    return bt;
+  }
+  double A = 0;
+  for (double v : block_sum) A += v * v;
+  A = std::max(1.0, A / e2);
+  bt.cmp.gain = sum_d / total;
+  bt.cmp.z = sum_d / (2 * std::sqrt(e2 / n * A * sum_delta2));
+  const Eigen::VectorXd all = kd.solve(-1, 3 * m);
+  bt.K0 = cv::Mat::zeros(K.size(), CV_64F);
+  bt.Kx = cv::Mat::zeros(K.size(), CV_64F);
+  bt.Ky = cv::Mat::zeros(K.size(), CV_64F);
+  for (int j = 0; j < m; ++j) {
+    bt.K0.at<double>(kd.support[j]) = all(j);
+    bt.Kx.at<double>(kd.support[j]) = all(m + j);
+    bt.Ky.at<double>(kd.support[j]) = all(2 * m + j);
+  }
+  const double n0 = cv::norm(bt.K0);
+  bt.variation = n0 > 0 ? (cv::norm(bt.Kx) + cv::norm(bt.Ky)) / n0 : 0;
+  bt.ok = true;
+  return bt;
+}
+
+void run(EffectSearch& search) {
+  const EffectInputs& in = search.in;
+  const EffectOptions& options = search.options;
+  auto& e = search.entry("spatially_varying_blur");
+  if (!(options.test_spatial_blur && in.kernel_estimated)) {
+    e.detail = in.kernel_estimated ? "disabled" : "kernel given (not estimated)";
+    return;
+  }
+  const int gi = search.g_index;
+  const cv::Mat g = [&] {  // the debiased φ(I) of the reported channel, around the selected model's φ
+    std::vector<double> f = onLevels(search.curves[gi].phi, search.p.levels[gi]);
+    if (!search.p.debias[gi].identity()) f = search.p.debias[gi].apply(f);
+    return applyTable(search.p.I[gi], f);
+  }();
+  search.blur = spatialBlurTest(search.problem.samples()[gi], g, search.K, search.centre, search.radius,
+                                search.blocks, options.min_derivative, 15000);
+  const BlurTest& blur = search.blur;
+  if (!blur.ok) {
+    e.detail = blur.problem;
+    return;
+  }
+  e.tested = true;
+  e.gain = blur.cmp.gain;
+  e.statistic = blur.cmp.z;
+  e.detected = blur.cmp.gain >= options.min_gain && blur.cmp.z >= options.min_z;
+  e.parameters = {{"variation", blur.variation},
+                  {"corner_kernel_difference",
+                   kernelRelativeError(kernelAt(blur, 0.7071, 0.7071), kernelAt(blur, 0, 0))}};
+  e.detail = fmt("kernel linear in the position: the kernel changes by %.3f (relative) from the centre to a corner",
+                 e.parameters["corner_kernel_difference"]);
+}
+
+}  // namespace
+
+const ModelCheck& spatiallyVaryingBlurCheck() {
+  static const ModelCheck check{"spatially_varying_blur", run};
+  return check;
+}
+
+}  // namespace crfcal::effect
