@@ -149,7 +149,9 @@ TEST(OutputSafety, CompareIntoTheFolderOfTheReportItComparesKeepsTheReport) {
   EXPECT_TRUE(fs::exists(x / "compare.json"));
   EXPECT_TRUE(fs::exists(x / "sharp.png"));  // simulate's other files stay
   std::set<std::string> listed;
-  for (const auto& f : io::readManifest(x)->files) listed.insert(f.path);
+  const auto manifest = io::readManifest(x);
+  ASSERT_TRUE(manifest);
+  for (const auto& f : manifest->files) listed.insert(f.path);
   EXPECT_TRUE(listed.count("compare.json") && listed.count("truth.json") && listed.count("sharp.png"));
   EXPECT_TRUE(leftovers(root.path()).empty());
 }

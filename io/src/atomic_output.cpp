@@ -95,8 +95,10 @@ OutputDirectory::OutputDirectory(fs::path final_path, OutputPolicy policy)
   final_ = stripped(final_);
   if (final_.filename() == "." || final_.filename() == "..") final_ = stripped(fs::absolute(final_));
   std::error_code ec;
-  if (fs::is_symlink(final_, ec)) final_ = fs::canonical(final_, ec);  // write where the link points, keep the link
-  if (ec) throw Error("cannot resolve the link: " + reason(ec), final_.string());
+  if (fs::is_symlink(fs::symlink_status(final_, ec))) {
+    final_ = fs::canonical(final_, ec);  // write where the link points, keep the link
+    if (ec) throw Error("cannot resolve the link: " + reason(ec), final_.string());
+  }
   const fs::path parent = final_.has_parent_path() ? final_.parent_path() : fs::path(".");
   if (fs::exists(parent, ec) && !fs::is_directory(parent, ec))
     throw Error("cannot write: " + parent.string() + " is not a directory", final_.string());
