@@ -6,6 +6,9 @@
 #include <system_error>
 
 #include <nlohmann/json.hpp>
+#include <sys/stat.h>
+
+#include "crfcal/error.hpp"
 
 #include "crfcal/io/atomic_output.hpp"
 
@@ -17,6 +20,13 @@ namespace crfcal::io {
 namespace fs = std::filesystem;
 
 namespace {
+// Last modification, nanoseconds since the Unix epoch (readable, unlike the file clock's ticks); nullopt if absent.
+std::optional<std::int64_t> modifiedNs(const fs::path& path) {
+  struct stat info {};
+  if (::lstat(path.c_str(), &info) != 0) return std::nullopt;
+  return static_cast<std::int64_t>(info.st_mtim.tv_sec) * 1000000000 + info.st_mtim.tv_nsec;
+}
+
 std::string utcNow() {
   const std::time_t now = std::time(nullptr);
   std::tm utc{};
@@ -36,8 +46,7 @@ bool OutputManifest::lists(const fs::path& relative, const fs::path& absolute) c
     if (ec || !fs::is_regular_file(status)) return false;
     const auto size = fs::file_size(absolute, ec);
     if (ec || size != entry.size) return false;
-    const auto modified = fs::last_write_time(absolute, ec);
-    return !ec && static_cast<std::int64_t>(modified.time_since_epoch().count()) == entry.modified;
+    return modifiedNs(absolute) == entry.modified;
   }
   return false;
 }
@@ -73,7 +82,9 @@ ManifestEntry describeFile(const fs::path& directory, const fs::path& relative) 
   ManifestEntry entry;
   entry.path = relative.generic_string();
   entry.size = fs::file_size(absolute);
-  entry.modified = static_cast<std::int64_t>(fs::last_write_time(absolute).time_since_epoch().count());
+  const auto modified = modifiedNs(absolute);
+  if (!modified) throw Error("cannot read the file's time", absolute.string());
+  entry.modified = *modified;
   return entry;
 }
 

@@ -15,7 +15,7 @@ inline constexpr const char* kManifestName = "crfcal-manifest.json";
 struct ManifestEntry {
   std::string path;             // relative to the directory, '/'-separated
   std::uintmax_t size = 0;      // bytes
-  std::int64_t modified = 0;    // last write time, file clock ticks
+  std::int64_t modified = 0;    // last modification, nanoseconds since the Unix epoch
 };
 
 struct OutputManifest {
