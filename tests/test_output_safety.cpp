@@ -190,7 +190,7 @@ TEST(OutputSafety, EmptyExistingDirectoryIsUsed) {
   EXPECT_TRUE(fs::exists(root / "empty" / io::kManifestName));
 }
 
-TEST(OutputSafety, UnwritableOutputLocationFailsBeforeTheComputationWithTheReason) {
+TEST(OutputSafety, OutputUnderAFileFailsBeforeTheComputationWithTheReason) {
   PhotosFolder folder;
   // A parent that is a file: "not a directory", whoever runs the test.
   const auto t = Clock::now();
@@ -200,8 +200,11 @@ TEST(OutputSafety, UnwritableOutputLocationFailsBeforeTheComputationWithTheReaso
   EXPECT_LT(secondsSince(t), 5.0) << "failed after the computation instead of before it";
   EXPECT_NE(r.output.find("not a directory"), std::string::npos) << r.output;
   EXPECT_EQ(snapshot(folder.photos), folder.before);
+}
 
-  if (::geteuid() == 0) GTEST_SKIP() << "root writes into read-only directories: permission part skipped";
+TEST(OutputSafety, ReadOnlyOutputLocationSaysPermissionDenied) {
+  PhotosFolder folder;
+  if (::geteuid() == 0) GTEST_SKIP() << "root writes into read-only directories";
   const fs::path locked = folder.root / "locked";
   fs::create_directories(locked);
   fs::permissions(locked, fs::perms::owner_read | fs::perms::owner_exec);
