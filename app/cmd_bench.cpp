@@ -3,6 +3,7 @@
 // fitter, and prints the table the seed printed (mean φ RMSE 0.0155 / 0.0137 / 0.0169) beside ours.
 #include <algorithm>
 #include <atomic>
+#include <optional>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -94,6 +95,7 @@ struct SyntheticArgs {
   double ratio = 1.0;
   bool quiet = false;
   bool timing = true;
+  bool force = false;  // --json/-o over files crfcal did not write (never deletes them)
 };
 
 struct Curve {
@@ -221,6 +223,13 @@ double since(std::chrono::steady_clock::time_point t0) {
 }
 
 int runSynthetic(const SyntheticArgs& args) {
+  // Decided before the computation: a refused or unwritable output fails at once.
+  std::vector<fs::path> inputs(args.images.begin(), args.images.end());
+  inputs.push_back(args.curves);
+  const io::OutputPolicy policy{"bench synthetic", inputs, args.force};
+  if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);
+  std::optional<io::OutputDirectory> plots;
+  if (!args.plot.empty()) plots.emplace(args.plot, policy);
   Progress progress(args.quiet);
   if (args.noise_vars.size() == 3)
     for (int i = 0; i < 3; ++i) kNoiseVariances[i] = args.noise_vars[i];
@@ -485,9 +494,9 @@ int runSynthetic(const SyntheticArgs& args) {
                      {"fit_seed_seconds", seed_s}, {"edge_pixels", pixels.size()}};
   }
 
-  if (!args.json.empty()) io::writeTextFile(args.json, json.dump(2) + "\n");
-  if (!args.plot.empty()) {
-    io::OutputDirectory out(args.plot);
+  if (!args.json.empty()) io::writeJsonOutput(args.json, json, policy.command, 2);
+  if (plots) {
+    io::OutputDirectory& out = *plots;
     const int curve = 0;
     for (const Variant& v : variants) {
       for (int level = 0; level < 3; ++level) {
@@ -561,6 +570,7 @@ const BenchRegistration synthetic_registration(
       command.add_option("--cases-limit", args->cases_limit, "Run only this many cases (spread over the grid)");
       command.add_option("--json", args->json, "Write the numbers as JSON");
       command.add_option("--plot", args->plot, "Write the seed's Fig. 5 (estimated vs true phi) as PNGs here");
+      command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--method", args->method, "seed | default | both")->check(CLI::IsMember({"seed", "default", "both"}));
       command.add_option("--variants", args->variants,
                          "Extra ablation variants: seed+denoise seed+debias seed-fixr moments+debias moments+debias+cue "

@@ -45,6 +45,7 @@ struct ChartBenchArgs {
   bool per_curve = false;
   std::string json;
   bool quiet = false;
+  bool force = false;  // --json/-o over files crfcal did not write (never deletes them)
 };
 
 struct KnownCurve {
@@ -348,6 +349,8 @@ int runChartBench(const ChartBenchArgs& args) {
   if (args.weights.empty()) throw InvalidInput("--exponent-smoothness needs at least one weight");
   for (double w : args.weights)
     if (!(w >= 0)) throw InvalidInput("--exponent-smoothness weights must be >= 0");
+  const io::OutputPolicy policy{"bench chart", {io::defaultSharedData(args.data)}, args.force};
+  if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
   Progress progress(args.quiet);
   nlohmann::json json;
   if (args.synthetic) {
@@ -364,7 +367,7 @@ int runChartBench(const ChartBenchArgs& args) {
       json["middlebury"] = runMiddlebury(args, root, progress);
     }
   }
-  if (!args.json.empty()) io::writeTextFile(args.json, json.dump(1) + "\n");
+  if (!args.json.empty()) io::writeJsonOutput(args.json, json, policy.command);
   return kExitOk;
 }
 
@@ -385,6 +388,7 @@ const BenchRegistration registration(
       command.add_flag("!--no-middlebury", args->middlebury, "Skip the Middlebury cameras");
       command.add_flag("--per-curve", args->per_curve, "Also print the synthetic error per curve");
       command.add_option("--json", args->json, "Write all numbers to this JSON file (atomic)");
+      command.add_flag("--force", args->force, kForceHelp);
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runChartBench(*args); };
     });

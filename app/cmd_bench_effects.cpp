@@ -53,6 +53,7 @@ struct EffectsArgs {
   std::vector<double> factors{0.25, 0.5, 1.0, 2.0};
   bool verbose = false;
   int threads = 2;  // cases in parallel (each case also uses OpenCV's own parallel loops; TBB nests them)
+  bool force = false;  // --json/-o over files crfcal did not write (never deletes them)
 };
 
 struct CaseResult {
@@ -254,6 +255,8 @@ int runSweep(const Sources& src, const EffectsArgs& args, const std::vector<std:
 }
 
 int runEffects(const EffectsArgs& args) {
+  const io::OutputPolicy policy{"bench effects", {}, args.force};
+  if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
   const Sources src = loadSources();
   std::vector<std::string> effects = args.effects;
   if (effects.empty()) {
@@ -331,7 +334,7 @@ int runEffects(const EffectsArgs& args) {
   table << "\n('none' rows: 'detected' = no effect reported; 1 − that is the false-alarm rate. 'none (kernel "
            "estimated)': clean pairs through the kernel-estimating path, where spatially_varying_blur is tested.)\n";
   std::printf("%s", table.str().c_str());
-  if (!args.json.empty()) io::writeTextFile(args.json, json.dump(1));
+  if (!args.json.empty()) io::writeJsonOutput(args.json, {{"cases", json}}, policy.command);
   return kExitOk;
 }
 
@@ -353,7 +356,8 @@ const BenchRegistration registration(
       command.add_flag("--sweep", args->sweep,
                        "Instead: the phi bias of each effect when ignored (effects off), per strength factor");
       command.add_option("--factors", args->factors, "--sweep: strengths as multiples of the threshold");
-      command.add_option("--json", args->json, "Write the per-case results here");
+      command.add_option("--json", args->json, "Write the per-case results here ({\"cases\": [...]})");
+      command.add_flag("--force", args->force, kForceHelp);
       command.add_flag("-v,--verbose", args->verbose, "Print every case's effect table");
       command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::PositiveNumber);
       return [args] { return runEffects(*args); };

@@ -54,6 +54,7 @@ struct PairsArgs {
   bool unweighted_irradiance_kernel = false;
   std::string shoulder = PairCalibrationOptions{}.fit.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   bool pairs_only = false;
+  bool force = false;  // write into an output directory holding other files (never deletes them)
 };
 
 // Real photos of ../shared/data used when no --image is given (three cameras, indoor and night scenes).
@@ -97,8 +98,11 @@ int runPairs(const PairsArgs& args) {
     for (const char* c : kDefaultCurves)
       crfs.push_back("table:" + (io::samplesDirectory() / "camera_curves" / (std::string(c) + ".csv")).string());
 
+  std::vector<fs::path> inputs(images.begin(), images.end());
+  for (const auto& spec : crfs) inputs.push_back(io::specInput(spec));
+  for (const auto& spec : args.kernels) inputs.push_back(io::specInput(spec));
+  io::OutputDirectory out(args.output, {"bench pairs", inputs, args.force});  // refused or unwritable: fails now
   Progress progress;
-  io::OutputDirectory out(args.output);
   nlohmann::json results = nlohmann::json::array();
   std::ostringstream table;
   table << "| case | image | curve | kernel | r | phi_G RMSE | (base fit) | r fitted/true | kernel shape err | "
@@ -269,6 +273,7 @@ const BenchRegistration registration(
                        "Irradiance-domain kernel rounds without the 1/phi'(B) weights, as calibrate (ablation)");
       command.add_flag("--pairs-only", args->pairs_only, "Only write the pairs (no calibration)");
       command.add_option("-o,--output", args->output, "Output directory")->required();
+      command.add_flag("--force", args->force, kForceHelp);
       return [args] { return runPairs(*args); };
     });
 

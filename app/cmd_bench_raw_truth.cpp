@@ -43,6 +43,7 @@ struct RawTruthBenchArgs {
   bool per_shot = false;
   std::string json;
   bool quiet = false;
+  bool force = false;  // --json/-o over files crfcal did not write (never deletes them)
 };
 
 double median(std::vector<double> v) {
@@ -204,6 +205,8 @@ nlohmann::json runRawSamples(const fs::path& root) {
 int runRawTruthBench(const RawTruthBenchArgs& args) {
   Progress progress(args.quiet);
   const fs::path shared = io::defaultSharedData(args.data);
+  const io::OutputPolicy policy{"bench raw-truth", {shared, args.curves}, args.force};
+  if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
   nlohmann::json json;
   bool any = false;
   if (fs::is_directory(shared / "middlebury")) {
@@ -221,7 +224,7 @@ int runRawTruthBench(const RawTruthBenchArgs& args) {
     std::printf("raw_samples not found at %s: skipped\n", (shared / "raw_samples").string().c_str());
   }
   if (!any) std::printf("(give --data or set CRFCAL_SHARED_DATA)\n");
-  if (!args.json.empty()) io::writeTextFile(args.json, json.dump(1) + "\n");
+  if (!args.json.empty()) io::writeJsonOutput(args.json, json, policy.command);
   return kExitOk;
 }
 
@@ -235,6 +238,7 @@ const BenchRegistration registration(
       command.add_option("--curves", args->curves, "Directory of camera curve tables (default samples/camera_curves)");
       command.add_flag("--per-shot", args->per_shot, "Print one row per shot");
       command.add_option("--json", args->json, "Write all numbers to this JSON file (atomic)");
+      command.add_flag("--force", args->force, kForceHelp);
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runRawTruthBench(*args); };
     });

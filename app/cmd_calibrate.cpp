@@ -49,6 +49,7 @@ struct CalibrateArgs {
   bool quiet = false;
   std::string raw_truth;            // RAW (or linear image) of one of the two shots
   std::string raw_truth_of = "auto";  // which shot it is: auto (EXIF), sharp, blurred
+  bool force = false;               // write into an output directory holding other files (never deletes them)
 };
 
 // Which shot of the pair the --raw-truth file belongs to: given, else the one with the same exposure time (and ISO,
@@ -187,6 +188,8 @@ int runCalibrate(const CalibrateArgs& args) {
   Progress progress(args.quiet);
   io::CalibrationReport report;
   report.command = "calibrate";
+  // Decided before the computation: a refused or unwritable output directory fails at once.
+  io::OutputDirectory out(args.output, {"calibrate", {args.first, args.second, args.kernel_file, args.raw_truth}, args.force});
 
   progress.stage("decode");
   auto t = Clock::now();
@@ -401,7 +404,6 @@ int runCalibrate(const CalibrateArgs& args) {
     for (const auto& w : truth->result.warnings) report.warnings.push_back("raw truth: " + w);
   }
 
-  io::OutputDirectory out(args.output);
   // inverse_crf.csv
   {
     std::ostringstream csv;
@@ -473,6 +475,7 @@ const CommandRegistration registration(
       command.add_option("SHARP", args->first, "The short-exposure (sharp, noisy) shot")->required();
       command.add_option("BLURRED", args->second, "The long-exposure (blurred) shot")->required();
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
+      command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--channels", args->channels, "Channels to fit: g (green only) or rgb")
           ->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--model", args->model, "Model of phi: ggcm (Eq. 19), emor (PCA), auto (cross-validated)")

@@ -33,6 +33,7 @@ struct ChartArgs {
   bool no_exif = false;
   std::string truth;
   std::string output;
+  bool force = false;  // write into an output directory holding other files (never deletes them)
   std::string channels = "RGB";
   ChartCalibrationOptions options;
   chart::PatchSamplingOptions sampling;
@@ -76,6 +77,12 @@ int runChart(ChartArgs args) {
     exposures = parseList(args.exposures, "--exposures");
     if (exposures.size() != args.images.size()) throw InvalidInput("--exposures needs one value per IMAGE");
   }
+
+  // Decided before the computation: a refused or unwritable output directory fails at once.
+  std::vector<std::filesystem::path> input_files(args.images.begin(), args.images.end());
+  input_files.insert(input_files.end(), args.raws.begin(), args.raws.end());
+  input_files.push_back(args.truth);
+  io::OutputDirectory out(args.output, {"chart", input_files, args.force});
 
   const auto start = std::chrono::steady_clock::now();
   auto seconds = [](std::chrono::steady_clock::time_point from) {
@@ -234,7 +241,6 @@ int runChart(ChartArgs args) {
     report.extra["truth"] = {{"file", args.truth}, {"phi_error", comparison}};
   }
 
-  io::OutputDirectory out(args.output);
   io::writeReport(out.file("report.json"), report);
   for (size_t i = 0; i < rectified.size(); ++i) io::writeImage(out.file("chart_" + std::to_string(i + 1) + ".png"), rectified[i]);
   io::writeChartPlot(out.file("chart_fit.png"), result,
@@ -258,6 +264,7 @@ const CommandRegistration registration(
           ->required()
           ->check(CLI::ExistingFile);
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
+      command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--raw", args->raws,
                          "Linear RAW renderings of the same shots (same geometry): the reference instead of the "
                          "published reflectances (exact, per channel)")

@@ -22,6 +22,7 @@ namespace {
 struct CompareArgs {
   std::string a, b;
   std::string output;
+  bool force = false;  // write into an output directory holding other files (never deletes them)
   std::optional<double> tolerance;
   std::string tolerance_range = "full";
   int samples = 1024;
@@ -51,6 +52,9 @@ std::vector<double> grid(size_t n) {
 }
 
 int runCompare(const CompareArgs& args) {
+  // Decided first: a refused or unwritable output directory fails at once.
+  std::optional<io::OutputDirectory> staged;
+  if (!args.output.empty()) staged.emplace(args.output, io::OutputPolicy{"compare", {args.a, args.b}, args.force});
   const io::CalibrationReport a = io::readReport(args.a);
   const io::CalibrationReport b = io::readReport(args.b);
   CurveComparisonOptions options;
@@ -73,7 +77,7 @@ int runCompare(const CompareArgs& args) {
   }
 
   if (!args.output.empty()) {
-    io::OutputDirectory out(args.output);
+    io::OutputDirectory& out = *staged;
     std::vector<io::PlotSeries> series;
     std::vector<std::string> drawn;  // "A:G", "B:G", … — a grey side's single curve is drawn once, in black
     auto add = [&](const io::CalibrationReport& report, const char* side, const std::string& channel,
@@ -160,6 +164,7 @@ const CommandRegistration registration(
       command.add_option("a", args->a, "First report.json (or truth.json)")->required();
       command.add_option("b", args->b, "Second report.json (or truth.json)")->required();
       command.add_option("-o,--output", args->output, "Directory for compare.png and compare.json (atomic)");
+      command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--tolerance", args->tolerance,
                          "Exit with status 3 if any channel's phi RMSE exceeds this")
           ->check(CLI::NonNegativeNumber);

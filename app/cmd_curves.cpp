@@ -30,6 +30,7 @@ struct CurvesArgs {
   // ScaledFitOptions::exponent_smoothness and docs/RESULTS.md#chart for the difference).
   double exponent_smoothness = 0;
   bool quiet = false;
+  bool force = false;  // write into an output directory holding other files (never deletes them)
 };
 
 int runCurvesMiddlebury(const CurvesArgs& args) {
@@ -37,7 +38,7 @@ int runCurvesMiddlebury(const CurvesArgs& args) {
   const auto cameras = io::listMiddleburyCameras(args.data);
   if (cameras.empty()) throw Error("no camera folders with *-jpg.png / *-raw.png pairs", args.data);
   Progress progress(args.quiet);
-  io::OutputDirectory out(args.output);
+  io::OutputDirectory out(args.output, {"curves middlebury", {args.data}, args.force});
   nlohmann::json summary = nlohmann::json::object();
   std::vector<io::PlotSeries> series;
   std::vector<double> grid(kCurveSamples);
@@ -132,6 +133,7 @@ const CommandRegistration registration(
           ->check(CLI::ExistingDirectory);
       middlebury->add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")
           ->required();
+      middlebury->add_flag("--force", args->force, kForceHelp);
       middlebury->add_option("--channel", args->channel, "Colour channel")->check(CLI::IsMember({"R", "G", "B"}));
       middlebury->add_option("--terms", args->terms, "EMoR terms K (0 = leave-one-shot-out cross-validation)")
           ->check(CLI::Range(0, 25));

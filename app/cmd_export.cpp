@@ -6,6 +6,7 @@
 #include "command.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/lut_export.hpp"
+#include "crfcal/io/output_guard.hpp"
 #include "crfcal/io/report.hpp"
 
 namespace crfcal::app {
@@ -23,6 +24,7 @@ struct ExportArgs {
 };
 
 int runExport(const ExportArgs& args) {
+  io::checkOutputFile(args.output, {"export", {args.report}});  // never the report itself; writable
   io::LutExportOptions options;
   if (!args.format.empty()) {
     options.format = io::parseLutFormat(args.format);

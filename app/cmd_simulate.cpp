@@ -24,11 +24,14 @@ struct SimulateArgs {
   std::string input_domain = "irradiance";
   SimulationOptions options;
   bool quiet = false;
+  bool force = false;  // write into an output directory holding other files (never deletes them)
 };
 
 int runSimulate(const SimulateArgs& args) {
   Progress progress(args.quiet);
   progress.stage("simulate");
+  io::OutputDirectory out(args.output,
+                          {"simulate", {args.image, io::specInput(args.crf), io::specInput(args.kernel)}, args.force});
   const cv::Mat image = io::readImage(args.image);
   const ResponseModel model = io::parseResponseSpec(args.crf);
   const cv::Mat kernel = io::kernelFromSpec(args.kernel);
@@ -36,7 +39,6 @@ int runSimulate(const SimulateArgs& args) {
   options.image_is_irradiance = args.input_domain == "irradiance";
   const SimulationResult pair = simulatePair(image, model, kernel, options);
 
-  io::OutputDirectory out(args.output);
   io::writeUnitImage(out.file("sharp.png"), pair.sharp, options.bits);
   io::writeUnitImage(out.file("blurred.png"), pair.blurred, options.bits);
   io::writeKernelPng(out.file("kernel.png"), kernel);
@@ -90,6 +92,7 @@ const CommandRegistration registration(
                          "irradiance: the image is the latent irradiance (Sec. 5); intensity: it is already I")
           ->check(CLI::IsMember({"irradiance", "intensity"}));
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
+      command.add_flag("--force", args->force, kForceHelp);
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runSimulate(*args); };
     });

@@ -39,6 +39,7 @@ struct StudyArgs {
   std::string data;
   std::string output;
   bool quiet = false;
+  bool force = false;  // write into an output directory holding other files (never deletes them)
   int knots = 12;      // channels
   int cases = 16;      // noise benchmark cases
   int images = 2;      // ratio sweep images
@@ -146,6 +147,7 @@ cv::Mat greenUnit(const fs::path& path, double scale = 1.0) {
 // ================================================================================================== channels
 int runChannels(const StudyArgs& args) {
   const fs::path root = requireData(args, "middlebury");
+  io::OutputDirectory out(args.output, {"study channels", {root}, args.force});  // refused or unwritable: fails now
   Progress progress(args.quiet);
   progress.stage("read middlebury charts");
   const auto cameras = io::readMiddleburyPatches(root / "middlebury");
@@ -286,7 +288,6 @@ int runChannels(const StudyArgs& args) {
   table.extra["mean_train_rmse_8bit"] = mean_train;
   table.extra["models"] = {"pointwise", "mix3x3", "mix3x3+clip", "mix3x3+clip+post"};
 
-  io::OutputDirectory out(args.output);
   emit(table, out);
   io::PlotOptions plot;
   plot.title = "RAW->JPEG held-out RMSE per camera (cross-validated over the 2 scenes)";
@@ -330,6 +331,7 @@ ResponseCurve debevecCurve(const fs::path& npy) {
 
 int runRatio(const StudyArgs& args) {
   const fs::path root = requireData(args, "brackets");
+  io::OutputDirectory out(args.output, {"study ratio", {root}, args.force});  // refused or unwritable: fails now
   Progress progress(args.quiet);
   StudyTable table;
   table.study = "ratio";
@@ -511,7 +513,6 @@ int runRatio(const StudyArgs& args) {
     table.extra["sweep"]["rmse_eq25"].push_back(rmse_eq25[e]);
     table.extra["sweep"]["ratio_eq25"].push_back(r_eq25[e]);
   }
-  io::OutputDirectory out(args.output);
   emit(table, out);
   io::PlotOptions plot;
   plot.title = "phi RMSE vs error of the exposure ratio r (synthetic, r = 2)";
@@ -527,6 +528,7 @@ int runRatio(const StudyArgs& args) {
 // ================================================================================================== noise
 int runNoise(const StudyArgs& args) {
   const fs::path root = requireData(args, "noise_profiles");
+  io::OutputDirectory out(args.output, {"study noise", {root}, args.force});  // refused or unwritable: fails now
   Progress progress(args.quiet);
   StudyTable table;
   table.study = "noise";
@@ -732,7 +734,6 @@ int runNoise(const StudyArgs& args) {
   table.summary.push_back(s);
   table.extra["misfit"] = {{"constant", mis_const}, {"intensity_affine", mis_lin}, {"through_curve", mis_curve}};
 
-  io::OutputDirectory out(args.output);
   emit(table, out);
   io::PlotOptions plot;
   plot.title = "darktable noise profiles through gamma 2.2: sigma_I(v)";
@@ -751,6 +752,7 @@ int runNoise(const StudyArgs& args) {
 void addCommon(CLI::App* sub, StudyArgs& args) {
   sub->add_option("--data", args.data, "Shared data directory (default $CRFCAL_SHARED_DATA or ../shared/data)");
   sub->add_option("-o,--output", args.output, "Output directory (created or replaced atomically)")->required();
+  sub->add_flag("--force", args.force, kForceHelp);
   sub->add_flag("-q,--quiet", args.quiet, "No progress output");
 }
 

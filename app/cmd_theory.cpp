@@ -24,6 +24,7 @@ struct TheoryArgs {
   std::string output;
   std::string images_dir;  // default: <samples>/levin09
   bool quiet = false;
+  bool force = false;  // write into an output directory holding other files (never deletes them)
 };
 
 std::string format(const char* fmt, auto... args) {
@@ -303,7 +304,7 @@ std::string checkTheorem(const io::OutputDirectory& out, const fs::path& images_
 int runTheory(const TheoryArgs& args) {
   Progress progress(args.quiet);
   const fs::path images_dir = args.images_dir.empty() ? io::samplesDirectory() / "levin09" : fs::path(args.images_dir);
-  io::OutputDirectory out(args.output);
+  io::OutputDirectory out(args.output, {"theory", {images_dir}, args.force});
   progress.stage("fig. 1(a) profiles");
   const std::string fig1a = writeFig1a(out);
   progress.done();
@@ -328,6 +329,7 @@ const CommandRegistration registration(
     [](CLI::App& command) {
       auto args = std::make_shared<TheoryArgs>();
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
+      command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--images-dir", args->images_dir,
                          "Directory of sharp images (kernel*.txt there are used as kernels, else the 8 Levin "
                          "kernels); default: the bundled samples/levin09");

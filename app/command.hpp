@@ -20,4 +20,9 @@ inline constexpr int kExitError = 1;      // bad input or a failed computation (
 inline constexpr int kExitUsage = 2;      // command-line syntax (CLI11's own)
 inline constexpr int kExitTolerance = 3;  // a --tolerance check failed (compare)
 
+// --force, the same in every command that writes an output directory or file (io::OutputDirectory, io/output_guard.hpp).
+inline constexpr const char* kForceHelp =
+    "Write into an existing output directory (or over a file) crfcal did not write: only the files crfcal writes are "
+    "replaced, nothing else there is deleted, and an input of the command is never overwritten";
+
 }  // namespace crfcal::app

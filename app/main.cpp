@@ -11,6 +11,7 @@
 
 #include "command.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/io/interrupt_cleanup.hpp"
 
 #ifndef CRFCAL_VERSION
 #define CRFCAL_VERSION "unknown"
@@ -41,6 +42,7 @@ CommandRegistration::CommandRegistration(int order, std::string name, std::strin
 
 int main(int argc, char** argv) {
   using namespace crfcal::app;
+  crfcal::io::installInterruptCleanup();  // first: before any thread starts (Ctrl-C leaves no partial output)
   cv::utils::logging::setLogLevel(cv::utils::logging::LOG_LEVEL_ERROR);
   CLI::App app{"crfcal " CRFCAL_VERSION
                " - measure a camera's response function (CRF) from a sharp/blurred pair and deblur with it.\n"
