@@ -175,5 +175,19 @@ TEST(RealRegimeSimulation, BenchPairsWritesTheNominalRatioAndTheIsosInExifAndTru
   EXPECT_LT(cv::mean(sharp)[1] * 1.5, cv::mean(blurred)[1]);
 }
 
+TEST(RealRegimeSimulation, AutoRegimeKeepsRatiosUpToTwoInTheSharpNormalRegime) {
+  TempDir dir;
+  const auto result = run("'" + crfcalBinary().string() + "' bench pairs --pairs-only --ratio 2 4 " + "--image '" +
+                          (samples() / "effects" / "window.jpg").string() + "' --max-side 160 --kernel levin:1 " +
+                          "--crf gamma:2.2 --noise-profiles '" + excerpt().string() + "' -o '" + (dir / "out").string() + "'");
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  std::ifstream in2(dir / "out" / "case1" / "truth.json"), in4(dir / "out" / "case2" / "truth.json");
+  const nlohmann::json r2 = nlohmann::json::parse(in2), r4 = nlohmann::json::parse(in4);
+  EXPECT_FALSE(r2.contains("regime"));  // the r = 1, 2 benches of RESULTS: sharp shot at ISO 800, 1/100 s
+  EXPECT_EQ(*io::readExif(dir / "out" / "case1" / "sharp.jpg").iso, 800);
+  EXPECT_EQ(r4.at("regime"), "real");
+  EXPECT_EQ(r4.at("iso_sharp").get<double>(), 400);
+}
+
 }  // namespace
 }  // namespace crfcal::test
