@@ -2,12 +2,19 @@
 // handheld misregistration, camera-like noise, JPEG, EXIF ratio) run through the whole calibrate pipeline
 // (decode → registration → kernel → φ fit → kernel ↔ φ rounds → effects) with the kernel and the registration
 // unknown.
+// Two exposure regimes (--regime): "sharp-normal", the r = 1, 2 benches of RESULTS (the sharp shot normally exposed,
+// the blurred one r× brighter, generic noise gains), and "real", real handheld pairs as the seed's footnote 4 shoots
+// them (the long low-ISO blurred shot normally exposed, the short high-ISO sharp shot underexposed by r, each with a
+// real camera's measured raw noise at its ISO). "auto" (default) takes "real" for r > 2, so r = 1, 2 are unchanged.
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <map>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -15,6 +22,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/handheld_simulation.hpp"
 #include "crfcal/io/atomic_output.hpp"
@@ -22,6 +30,7 @@
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/kernel_io.hpp"
+#include "crfcal/io/noise_profiles.hpp"
 #include "crfcal/io/pair_input.hpp"
 #include "crfcal/io/response_io.hpp"
 #include "crfcal/kernel.hpp"
@@ -55,7 +64,75 @@ struct PairsArgs {
   std::string shoulder = PairCalibrationOptions{}.fit.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   bool pairs_only = false;
   bool force = false;  // write into an output directory holding other files (never deletes them)
+  std::string regime = "auto";  // auto | sharp-normal | real (see the top of this file); auto = real for r > 2
+  std::string noise_camera = "LGE Nexus 5";  // real regime: darktable's only phone (real pairs are phone pairs)
+  std::string noise_profiles;   // darktable noise-profile file (default: io::defaultNoiseProfiles(data))
+  double blurred_iso = 0;       // real regime: ISO of the blurred shot (0: the noise camera's lowest profiled ISO);
+                                // the sharp shot gets blurred_iso · r
 };
+
+bool realRegime(const PairsArgs& args, double ratio) {
+  return args.regime == "real" || (args.regime == "auto" && ratio > 2);
+}
+
+// Real regime: the camera's noise and the two shots' ISOs for a ratio r (blurred ISO · r for the sharp shot: r×
+// less light at r× the gain, e.g. ISO 100 at t and ISO 800 at t / 64 for r = 8).
+struct RealExposure {
+  double iso_blurred = 0, iso_sharp = 0;
+  SensorNoise noise_blurred, noise_sharp;
+};
+
+RealExposure realExposure(const io::CameraNoiseProfile& camera, double blurred_iso, double ratio) {
+  RealExposure e;
+  e.iso_blurred = blurred_iso > 0 ? blurred_iso : camera.minIso();
+  e.iso_sharp = e.iso_blurred * ratio;
+  e.noise_blurred = camera.atIso(e.iso_blurred);
+  e.noise_sharp = camera.atIso(e.iso_sharp);
+  return e;
+}
+
+// EXIF of a real-regime pair: the sharp shot at its ISO rounded as a camera writes it and a shutter time 1/n near
+// 1/4 s · ISO_B / (ISO_I · r); the blurred shot at ISO_B and the time that makes the EXIF ratio
+// ISO_B·t_B / (ISO_I·t_I) the truth × (1 + exif_error), as in the sharp-normal regime (EXIF stores the long time to
+// 1 ms: about 0.2 % of the ratio).
+void setRealExif(ExifExposure& sharp, ExifExposure& blurred, const RealExposure& e, double ratio, double exif_error) {
+  sharp.iso = std::round(e.iso_sharp);
+  sharp.exposure_time = 1.0 / std::max(1.0, std::round(*sharp.iso * ratio / (e.iso_blurred * 0.25)));
+  blurred.iso = e.iso_blurred;
+  blurred.exposure_time = ratio * (1 + exif_error) * *sharp.iso * *sharp.exposure_time / e.iso_blurred;
+}
+
+// Per-ratio summary of a run (the targets of issue 17 are stated per r).
+struct RatioSummary {
+  std::string regime;
+  double iso_sharp = 0, iso_blurred = 0;
+  int cases = 0, done = 0, within_5_percent = 0, shape_within_001 = 0, size_limit_stops = 0, other_failures = 0;
+  double sum_r_error = 0, worst_r_error = 0, sum_rmse = 0, worst_rmse = 0, sum_shape = 0, worst_shape = 0, seconds = 0;
+};
+
+std::string ratioSummaryTable(const std::map<double, RatioSummary>& by_ratio) {
+  std::ostringstream out;
+  out << "\nper r (fitted r error = |r_fitted/r_true - 1|; shape RMSE = min_b RMS(b phi_fit - phi_true) over the "
+         "covered range of G)\n"
+      << "| r | regime | ISO sharp / blurred | cases | r error mean | r error worst | r within 5 % | phi_G RMSE "
+         "mean (worst) | shape RMSE mean (worst) | shape <= 0.01 | kernel-size stops | other failures | time s |\n"
+      << "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const auto& [ratio, s] : by_ratio) {
+    const double n = std::max(s.done, 1);
+    char line[512];
+    std::snprintf(line, sizeof line,
+                  "| %.2f | %s | %s | %d | %.4f | %.4f | %d/%d | %.4f (%.4f) | %.4f (%.4f) | %d/%d | %d | %d | %.0f |\n",
+                  ratio, s.regime.c_str(),
+                  s.iso_sharp > 0 ? (std::to_string(static_cast<int>(std::lround(s.iso_sharp))) + " / " +
+                                     std::to_string(static_cast<int>(std::lround(s.iso_blurred)))).c_str()
+                                  : "generic noise",
+                  s.cases, s.sum_r_error / n, s.worst_r_error, s.within_5_percent, s.cases, s.sum_rmse / n,
+                  s.worst_rmse, s.sum_shape / n, s.worst_shape, s.shape_within_001, s.cases, s.size_limit_stops,
+                  s.other_failures, s.seconds);
+    out << line;
+  }
+  return out.str();
+}
 
 // Real photos of ../shared/data used when no --image is given (three cameras, indoor and night scenes).
 const char* kDefaultPhotos[] = {"brackets/nikon_e995_window/HDRI_Sample_Scene_Window_-_05.jpg",
@@ -98,6 +175,23 @@ int runPairs(const PairsArgs& args) {
     for (const char* c : kDefaultCurves)
       crfs.push_back("table:" + (io::samplesDirectory() / "camera_curves" / (std::string(c) + ".csv")).string());
 
+  // Real regime: the noise camera and every ratio's ISOs are looked up before anything is written.
+  const bool any_real = std::any_of(args.ratios.begin(), args.ratios.end(), [&](double r) { return realRegime(args, r); });
+  std::optional<io::CameraNoiseProfile> noise_camera;
+  std::map<double, RatioSummary> by_ratio;
+  for (const double ratio : args.ratios) {
+    RatioSummary& summary = by_ratio[ratio];
+    summary.regime = realRegime(args, ratio) ? "real" : "sharp-normal";
+    if (!realRegime(args, ratio)) continue;
+    if (!noise_camera)
+      noise_camera = io::readCameraNoiseProfile(
+          args.noise_profiles.empty() ? io::defaultNoiseProfiles(args.data) : fs::path(args.noise_profiles),
+          args.noise_camera);
+    const RealExposure e = realExposure(*noise_camera, args.blurred_iso, ratio);
+    summary.iso_sharp = e.iso_sharp;
+    summary.iso_blurred = e.iso_blurred;
+  }
+
   std::vector<fs::path> inputs(images.begin(), images.end());
   for (const auto& spec : crfs) inputs.push_back(io::specInput(spec));
   for (const auto& spec : args.kernels) inputs.push_back(io::specInput(spec));
@@ -105,9 +199,12 @@ int runPairs(const PairsArgs& args) {
   Progress progress;
   nlohmann::json results = nlohmann::json::array();
   std::ostringstream table;
+  if (noise_camera) table << "real regime: noise of " << noise_camera->summary() << "\n\n";
+  // The shape column only with the real regime, so that the r = 1, 2 tables stay those of RESULTS.
   table << "| case | image | curve | kernel | r | phi_G RMSE | (base fit) | r fitted/true | kernel shape err | "
-           "reg. corner err px | time s |\n"
-        << "|---|---|---|---|---|---|---|---|---|---|---|\n";
+           "reg. corner err px | "
+        << (any_real ? "shape RMSE covered | covered G | " : "") << "time s |\n"
+        << "|---|---|---|---|---|---|---|---|---|---|---|" << (any_real ? "---|---|" : "") << "\n";
   int index = 0;
   double sum_rmse = 0, sum_base = 0, sum_r = 0, sum_k = 0, worst_r = 0, worst_rmse = 0;
   int done = 0;
@@ -133,6 +230,16 @@ int runPairs(const PairsArgs& args) {
           ho.shift_y = args.shift * std::sin(angle);
           ho.rotation_deg = index % 2 ? args.rotation : -args.rotation;
           ho.seed = static_cast<std::uint64_t>(index);
+          const bool real = realRegime(args, ratio);
+          RatioSummary& summary = by_ratio[ratio];
+          ++summary.cases;
+          std::optional<RealExposure> exposure;
+          if (real) {
+            exposure = realExposure(*noise_camera, args.blurred_iso, ratio);
+            ho.normally_exposed = HandheldPairOptions::NormallyExposed::Blurred;
+            ho.sharp_noise = exposure->noise_sharp;
+            ho.blurred_noise = exposure->noise_blurred;
+          }
           const HandheldPair pair = makeHandheldPair(photo, truth, kernel, ho);
           const fs::path dir = out.file(name);
           fs::create_directories(dir);
@@ -147,12 +254,17 @@ int runPairs(const PairsArgs& args) {
           es.f_number = eb.f_number = 4.0;
           eb.iso = 100;
           eb.exposure_time = ratio * (1 + args.exif_error) * 800 * 0.01 / 100;
+          if (exposure) setRealExif(es, eb, *exposure, ratio, args.exif_error);
           io::writeExif(dir / "sharp.jpg", es);
           io::writeExif(dir / "blurred.jpg", eb);
           nlohmann::json truth_json = {{"inverse_crf", sampleInverse(truth)}, {"crf_spec", crf}, {"kernel_spec", kernel_spec},
                                        {"exposure_ratio", ratio}, {"exif_ratio", *eb.exposure_time * 100 / 8.0},
                                        {"homography", std::vector<double>(pair.homography.begin<double>(), pair.homography.end<double>())},
                                        {"image", image_path}};
+          if (exposure)
+            truth_json.update({{"regime", "real"}, {"noise_camera", noise_camera->camera()},
+                               {"noise_profiles", noise_camera->source}, {"iso_sharp", *es.iso}, {"iso_blurred", *eb.iso},
+                               {"exif_ratio", *eb.iso * *eb.exposure_time / (*es.iso * *es.exposure_time)}});
           io::writeTextFile(dir / "truth.json", truth_json.dump(1) + "\n");
           if (args.pairs_only) {
             progress.done();
@@ -160,7 +272,7 @@ int runPairs(const PairsArgs& args) {
           }
           const auto t0 = std::chrono::steady_clock::now();
           nlohmann::json row = {{"case", name}, {"image", fs::path(image_path).filename().string()}, {"crf", crf},
-                                {"kernel", kernel_spec}, {"ratio", ratio}};
+                                {"kernel", kernel_spec}, {"ratio", ratio}, {"regime", summary.regime}};
           try {
             const io::LoadedPair loaded = io::loadPair(dir / "sharp.jpg", dir / "blurred.jpg");
             PairCalibrationOptions options;
@@ -194,11 +306,34 @@ int runPairs(const PairsArgs& args) {
                         {"effects_detected", r.effects.detected()}, {"kernel_shape_error", kerr},
                         {"registration_corner_error_px", cerr}, {"seconds", seconds}, {"swapped", loaded.swapped},
                         {"inverse_crf_G", r.fits.at("G").inverse_crf}, {"warnings", r.warnings}});
+            // Shape over the covered range after the best common scale: φ → bφ leaves Eq. 4 unchanged.
+            std::optional<IntensityRange> covered;
+            if (r.covered_range.count("G")) covered = r.covered_range.at("G");
+            const ChannelComparison shape = compareCurves(sampleInverse(truth), r.fits.at("G").inverse_crf, {}, covered);
+            row.update({{"phi_shape_rmse_G_covered", shape.rmse_covered_aligned}, {"phi_scale_G_covered", shape.scale_covered},
+                        {"covered_G", {shape.covered.first, shape.covered.second}}});
             char line[400];
-            std::snprintf(line, sizeof line, "| %s | %s | %s | %s | %.2f | %.4f | %.4f | %.4f | %.3f | %.2f | %.1f |\n",
-                          name.c_str(), fs::path(image_path).filename().string().c_str(), shortName(crf).c_str(),
-                          kernel_spec.c_str(), ratio, rmse, base, rr, kerr, cerr, seconds);
+            if (any_real)
+              std::snprintf(line, sizeof line,
+                            "| %s | %s | %s | %s | %.2f | %.4f | %.4f | %.4f | %.3f | %.2f | %.4f | %.2f-%.2f | %.1f |\n",
+                            name.c_str(), fs::path(image_path).filename().string().c_str(), shortName(crf).c_str(),
+                            kernel_spec.c_str(), ratio, rmse, base, rr, kerr, cerr, shape.rmse_covered_aligned,
+                            shape.covered.first, shape.covered.second, seconds);
+            else
+              std::snprintf(line, sizeof line, "| %s | %s | %s | %s | %.2f | %.4f | %.4f | %.4f | %.3f | %.2f | %.1f |\n",
+                            name.c_str(), fs::path(image_path).filename().string().c_str(), shortName(crf).c_str(),
+                            kernel_spec.c_str(), ratio, rmse, base, rr, kerr, cerr, seconds);
             table << line;
+            ++summary.done;
+            summary.sum_r_error += std::abs(rr - 1);
+            summary.worst_r_error = std::max(summary.worst_r_error, std::abs(rr - 1));
+            summary.within_5_percent += std::abs(rr - 1) <= 0.05;
+            summary.sum_rmse += rmse;
+            summary.worst_rmse = std::max(summary.worst_rmse, rmse);
+            summary.sum_shape += shape.rmse_covered_aligned;
+            summary.worst_shape = std::max(summary.worst_shape, shape.rmse_covered_aligned);
+            summary.shape_within_001 += shape.rmse_covered_aligned <= 0.01;
+            summary.seconds += seconds;
             sum_rmse += rmse;
             sum_base += base;
             sum_r += std::abs(rr - 1);
@@ -209,7 +344,11 @@ int runPairs(const PairsArgs& args) {
             progress.done(line);
           } catch (const Error& e) {
             row["error"] = e.what();
-            table << "| " << name << " | failed: " << e.what() << " ||||||||||\n";
+            table << "| " << name << " | failed: " << e.what() << " ||||||||||" << (any_real ? "||" : "") << "\n";
+            const bool size_limit = std::string(e.what()).find("size limit") != std::string::npos;
+            summary.size_limit_stops += size_limit;
+            summary.other_failures += !size_limit;
+            summary.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
             progress.done(std::string("FAILED: ") + e.what());
           }
           results.push_back(row);
@@ -225,6 +364,7 @@ int runPairs(const PairsArgs& args) {
                   sum_rmse / done, worst_rmse, sum_base / done, sum_r / done, worst_r, sum_k / done, done, index);
     table << line;
   }
+  if (any_real && !args.pairs_only) table << ratioSummaryTable(by_ratio);
   io::writeTextFile(out.file("results.json"), results.dump(1) + "\n");
   io::writeTextFile(out.file("results.md"), table.str());
   out.commit();
@@ -245,15 +385,20 @@ const BenchRegistration registration(
       command.add_option("--crf", args->crfs,
                          "True inverse response(s) phi (spec; default: measured curves of three cameras in "
                          "samples/camera_curves)");
-      command.add_option("--kernel", args->kernels, "True kernel(s): levin:N | box:L | FILE");
-      command.add_option("--ratio", args->ratios, "True exposure ratio(s) r")->check(CLI::PositiveNumber);
-      command.add_option("--exif-error", args->exif_error, "Relative error of the EXIF ratio against the truth");
-      command.add_option("--shift", args->shift, "Handheld shift magnitude, pixels (direction varies per case)");
-      command.add_option("--rotation", args->rotation, "Handheld rotation, degrees (sign alternates per case)");
-      command.add_option("--quality", args->quality, "JPEG quality")->check(CLI::Range(50, 100));
-      command.add_option("--max-side", args->max_side, "Downscale the photo to this longest side");
-      command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)");
-      command.add_option("--channels", args->channels, "g or rgb")->check(CLI::IsMember({"g", "rgb"}));
+      command.add_option("--kernel", args->kernels, "True kernel(s): levin:N | box:L | FILE")->capture_default_str();
+      command.add_option("--ratio", args->ratios, "True exposure ratio(s) r (r > 2: the real regime unless --regime says otherwise)")
+          ->capture_default_str()
+          ->check(CLI::PositiveNumber);
+      command.add_option("--exif-error", args->exif_error, "Relative error of the EXIF ratio against the truth")
+          ->capture_default_str();
+      command.add_option("--shift", args->shift, "Handheld shift magnitude, pixels (direction varies per case)")
+          ->capture_default_str();
+      command.add_option("--rotation", args->rotation, "Handheld rotation, degrees (sign alternates per case)")
+          ->capture_default_str();
+      command.add_option("--quality", args->quality, "JPEG quality")->capture_default_str()->check(CLI::Range(50, 100));
+      command.add_option("--max-side", args->max_side, "Downscale the photo to this longest side")->capture_default_str();
+      command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)")->capture_default_str();
+      command.add_option("--channels", args->channels, "g or rgb")->capture_default_str()->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--noise-handling", args->noise_handling, "The sharp shot's noise in the fit: jensen, none, debias, denoise")
           ->capture_default_str()
           ->check(CLI::IsMember({"jensen", "none", "debias", "denoise"}));
@@ -271,6 +416,26 @@ const BenchRegistration registration(
           ->check(CLI::NonNegativeNumber);
       command.add_flag("--unweighted-irradiance-kernel", args->unweighted_irradiance_kernel,
                        "Irradiance-domain kernel rounds without the 1/phi'(B) weights, as calibrate (ablation)");
+      command.add_option("--regime", args->regime,
+                         "Exposure regime: sharp-normal (the sharp shot normally exposed, the blurred one r x brighter, "
+                         "generic noise: the r = 1, 2 benches), real (the blurred shot normally exposed at "
+                         "--blurred-iso, the sharp one underexposed by r at ISO r x that, each with --noise-camera's "
+                         "measured noise; adds the shape-RMSE columns and a per-r summary), auto (real for r > 2)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"auto", "sharp-normal", "real"}));
+      command.add_option("--noise-camera", args->noise_camera,
+                         "Real regime: camera whose measured raw noise (darktable profile) the shots get, \"maker "
+                         "model\" (default: darktable's only phone, as real pairs are phone pairs)")
+          ->capture_default_str();
+      command.add_option("--noise-profiles", args->noise_profiles,
+                         "Real regime: darktable noiseprofiles.json (default: --data's noise_profiles/noiseprofiles.json, "
+                         "else the bundled excerpt samples/noise_profiles/)")
+          ->check(CLI::ExistingFile);
+      command.add_option("--blurred-iso", args->blurred_iso,
+                         "Real regime: ISO of the blurred shot; the sharp shot gets this x r (default 0: the noise "
+                         "camera's lowest profiled ISO)")
+          ->capture_default_str()
+          ->check(CLI::NonNegativeNumber);
       command.add_flag("--pairs-only", args->pairs_only, "Only write the pairs (no calibration)");
       command.add_option("-o,--output", args->output, "Output directory")->required();
       command.add_flag("--force", args->force, kForceHelp);

@@ -11,11 +11,25 @@
 #include "crfcal/response_curve.hpp"
 
 namespace crfcal {
+namespace {
+
+// The noise of plane `c` of an OpenCV image with `planes` planes: BGR order, a single plane is treated as green.
+PoissonGaussian channelNoise(const SensorNoise& noise, size_t c, size_t planes) {
+  if (planes != 3) return noise.green;
+  return c == 0 ? noise.blue : c == 1 ? noise.green : noise.red;
+}
+
+}  // namespace
 
 void HandheldPairOptions::check() const {
   if (!(ratio > 0)) throw InvalidInput("ratio must be > 0");
   if (!(exposure > 0 && exposure <= 1)) throw InvalidInput("exposure must be in (0, 1]");
   if (noise_gain_sharp < 0 || noise_gain_blurred < 0 || read_noise < 0) throw InvalidInput("noise must be >= 0");
+  for (const auto& noise : {sharp_noise, blurred_noise})
+    if (noise)
+      for (const PoissonGaussian& channel : {noise->red, noise->green, noise->blue})
+        if (!(channel.a >= 0) || !std::isfinite(channel.b))
+          throw InvalidInput("camera noise needs a >= 0 and a finite b (variance = a·x + b)");
 }
 
 HandheldPair makeHandheldPair(const cv::Mat& photo, const ResponseModel& phi, const cv::Mat& kernel_in,
@@ -37,11 +51,11 @@ HandheldPair makeHandheldPair(const cv::Mat& photo, const ResponseModel& phi, co
   const double gain = options.exposure / std::max(mean_lin, 1e-6);
   std::mt19937_64 rng(options.seed);
   std::normal_distribution<double> normal(0.0, 1.0);
-  auto noisy = [&](const cv::Mat& e, double poisson) {
+  auto noisy = [&](const cv::Mat& e, const PoissonGaussian& noise) {
     cv::Mat out = e.clone();
     for (int y = 0; y < out.rows; ++y) {
       double* p = out.ptr<double>(y);
-      for (int x = 0; x < out.cols; ++x) p[x] += std::sqrt(poisson * std::max(p[x], 0.0) + options.read_noise) * normal(rng);
+      for (int x = 0; x < out.cols; ++x) p[x] += std::sqrt(noise.variance(p[x])) * normal(rng);
     }
     return out;
   };
@@ -52,11 +66,25 @@ HandheldPair makeHandheldPair(const cv::Mat& photo, const ResponseModel& phi, co
   pair.homography = cv::Mat::eye(3, 3, CV_64F);
   A.copyTo(pair.homography.rowRange(0, 2));
   std::vector<cv::Mat> sharp(planes.size()), blurred(planes.size());
+  const bool sharp_normal = options.normally_exposed == HandheldPairOptions::NormallyExposed::Sharp;
   for (size_t c = 0; c < planes.size(); ++c) {
     cv::Mat e = irr[c] * gain;
-    cv::min(e, 1.0, e);
-    cv::Mat i = curve.forward(cv::max(cv::min(noisy(e, options.noise_gain_sharp), 1.0), 0.0));
-    cv::Mat b_irr = noisy(options.ratio * convolve(e, kernel), options.noise_gain_blurred);
+    cv::Mat sharp_irr, blurred_irr;
+    if (sharp_normal) {
+      cv::min(e, 1.0, e);
+      sharp_irr = e;
+      blurred_irr = options.ratio * convolve(e, kernel);
+    } else {  // e is the scene irradiance L seen by the blurred shot; the sharp shot sees L / r (Eq. 4)
+      sharp_irr = e / options.ratio;
+      blurred_irr = convolve(e, kernel);
+    }
+    const PoissonGaussian sharp_noise = options.sharp_noise ? channelNoise(*options.sharp_noise, c, planes.size())
+                                                            : PoissonGaussian{options.noise_gain_sharp, options.read_noise};
+    const PoissonGaussian blurred_noise = options.blurred_noise
+                                              ? channelNoise(*options.blurred_noise, c, planes.size())
+                                              : PoissonGaussian{options.noise_gain_blurred, options.read_noise};
+    cv::Mat i = curve.forward(cv::max(cv::min(noisy(sharp_irr, sharp_noise), 1.0), 0.0));
+    cv::Mat b_irr = noisy(blurred_irr, blurred_noise);
     cv::Mat b = curve.forward(cv::max(cv::min(b_irr, 1.0), 0.0));
     cv::Mat moved;
     cv::warpAffine(b, moved, A, b.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);

@@ -2,13 +2,22 @@
 // Semi-real handheld pairs: a real photograph re-rendered through a known inverse response φ (a measured curve),
 // blurred by a real kernel, misregistered by a handheld motion (shift + small rotation), with camera-like
 // (Poisson–Gaussian, irradiance-domain) noise — the evidence protocol of `crfcal bench pairs`.
-// Model (Eq. 4): E = linearised photo (x^2.2) scaled to mid-exposure; sharp I = ψ(E + n_I);
-//                blurred B = warp_H(ψ(min(1, r · (E ⊗ K) + n_B))). JPEG compression and EXIF are added by io.
+// Model (Eq. 4): sharp I = ψ(E + n_I), blurred B = warp_H(ψ(min(1, r · (E ⊗ K) + n_B))), E = the linearised
+// photo (x^2.2) scaled so that the normally exposed shot has mean irradiance `exposure`:
+//   * SharpNormal (the r = 1, 2 benches): the sharp shot is normally exposed (E clipped at 1), the blurred shot r×
+//     brighter (clipping where r·E⊗K > 1); noise from the generic gains below;
+//   * BlurredNormal (real handheld pairs, the seed's footnote 4: a long low-ISO shot and a short high-ISO one
+//     underexposed by r): the blurred shot is normally exposed, the sharp one gets r× less irradiance (E = L/r for
+//     the scene irradiance L, unclipped before the blur); with `sharp_noise` / `blurred_noise` each shot gets a
+//     camera's measured raw noise at its ISO (sensor_noise.hpp) in the irradiance domain, before the curve.
+// JPEG compression and EXIF are added by io.
 #include <cstdint>
+#include <optional>
 
 #include <opencv2/core.hpp>
 
 #include "crfcal/response_model.hpp"
+#include "crfcal/sensor_noise.hpp"
 
 namespace crfcal {
 
@@ -16,10 +25,14 @@ struct HandheldPairOptions {
   double ratio = 1.0;             // true r = Δt_B / Δt_I
   double shift_x = 4.3, shift_y = -2.7;  // handheld shift of the blurred frame, pixels
   double rotation_deg = 0.4;      // handheld rotation of the blurred frame about the centre
-  double exposure = 0.45;         // mean irradiance of the sharp frame (before r)
+  enum class NormallyExposed { Sharp, Blurred };
+  NormallyExposed normally_exposed = NormallyExposed::Sharp;  // which shot has mean irradiance `exposure`
+  double exposure = 0.45;         // mean irradiance of the normally exposed frame
   double noise_gain_sharp = 4e-4; // Poisson part: variance = gain · E (high ISO)
   double noise_gain_blurred = 2e-5;
   double read_noise = 1e-6;       // Gaussian part (variance)
+  // A camera's measured noise at each shot's ISO; when set, replaces the generic gains above for that shot.
+  std::optional<SensorNoise> sharp_noise, blurred_noise;
   std::uint64_t seed = 1;
   void check() const;
 };

@@ -1,0 +1,24 @@
+#pragma once
+// Sensor noise of a camera's raw channels as measured for real cameras (darktable's noise profiles): the
+// Poisson–Gaussian model, for a raw value x ∈ [0, 1] (black-subtracted, white-scaled)
+//     variance(x) = a·x + b,
+// a = the shot-noise term (∝ 1 / photons per unit x, so it grows with the ISO gain), b = the read-noise term
+// (measured fits can give b slightly below 0: the variance is then clamped at 0). The seed (Sec. 5) adds noise to
+// emulate "capturing images under a high ISO"; this is the camera-measured form of that noise.
+// Pure computation: no file I/O.
+#include <algorithm>
+
+namespace crfcal {
+
+struct PoissonGaussian {
+  double a = 0;  // variance per unit raw value (shot noise)
+  double b = 0;  // variance at x = 0 (read noise)
+  double variance(double x) const { return std::max(0.0, a * std::max(x, 0.0) + b); }
+};
+
+// One camera at one ISO: the noise of its red, green and blue raw channels.
+struct SensorNoise {
+  PoissonGaussian red, green, blue;
+};
+
+}  // namespace crfcal

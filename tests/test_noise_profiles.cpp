@@ -1,0 +1,193 @@
+// darktable's camera noise profiles (io/noise_profiles.hpp) on the bundled excerpt, and the real-regime handheld
+// simulation (handheld_simulation.hpp): the sharp shot underexposed by r, each shot with the planted a·x + b noise.
+#include <cmath>
+#include <fstream>
+#include <functional>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "crfcal/error.hpp"
+#include "crfcal/exposure_ratio.hpp"
+#include "crfcal/handheld_simulation.hpp"
+#include "crfcal/io/exif.hpp"
+#include "crfcal/io/noise_profiles.hpp"
+#include "test_support.hpp"
+
+namespace crfcal::test {
+namespace {
+namespace fs = std::filesystem;
+
+fs::path excerpt() { return samples() / "noise_profiles" / "noiseprofiles.json"; }
+
+std::string errorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return {};
+}
+
+TEST(NoiseProfiles, ReadsACameraByMakerAndModelFromTheBundledExcerpt) {
+  const auto nexus = io::readCameraNoiseProfile(excerpt(), "LGE Nexus 5");
+  EXPECT_EQ(nexus.camera(), "LGE Nexus 5");
+  ASSERT_EQ(nexus.by_iso.size(), 6u);  // 100 … 3200, the two ISO 3200 measurements as one
+  EXPECT_EQ(nexus.minIso(), 100);
+  EXPECT_EQ(nexus.maxIso(), 3200);
+  const SensorNoise iso100 = nexus.atIso(100);
+  EXPECT_DOUBLE_EQ(iso100.red.a, 2.43081198620952e-05);
+  EXPECT_DOUBLE_EQ(iso100.green.a, 1.33827792338459e-05);
+  EXPECT_DOUBLE_EQ(iso100.blue.b, 9.89959561056272e-08);
+  // The model alone, any case and spacing, finds the same camera.
+  EXPECT_DOUBLE_EQ(io::readCameraNoiseProfile(excerpt(), "  nexus   5 ").atIso(100).green.a, iso100.green.a);
+}
+
+TEST(NoiseProfiles, RepeatedMeasurementsOfAnIsoAreAveraged) {
+  const auto nexus = io::readCameraNoiseProfile(excerpt(), "LGE Nexus 5");
+  EXPECT_DOUBLE_EQ(nexus.atIso(3200).green.a, (0.000424195799109644 + 0.000442218441209912) / 2);
+  EXPECT_DOUBLE_EQ(nexus.atIso(3200).red.b, (1.42802529339895e-05 + 1.15050395187219e-05) / 2);
+}
+
+TEST(NoiseProfiles, SkippedProfilesAreIgnored) {
+  // The 5D Mark II has a superseded ("skip") ISO 100 profile with a = 2.83e-6 on every channel.
+  const auto canon = io::readCameraNoiseProfile(excerpt(), "Canon EOS 5D Mark II");
+  EXPECT_DOUBLE_EQ(canon.atIso(100).green.a, 2.54268633057631e-06);
+  EXPECT_EQ(canon.by_iso.size(), 22u);
+  // The G10 keeps one of its several measurements per ISO.
+  EXPECT_DOUBLE_EQ(io::readCameraNoiseProfile(excerpt(), "Canon PowerShot G10").atIso(800).green.a,
+                   0.000139637366609320);
+}
+
+TEST(NoiseProfiles, InterpolatesLinearlyBetweenMeasuredIsos) {
+  const auto nexus = io::readCameraNoiseProfile(excerpt(), "LGE Nexus 5");
+  const SensorNoise at300 = nexus.atIso(300), at200 = nexus.atIso(200), at400 = nexus.atIso(400);
+  EXPECT_DOUBLE_EQ(at300.green.a, (at200.green.a + at400.green.a) / 2);
+  EXPECT_DOUBLE_EQ(at300.blue.b, (at200.blue.b + at400.blue.b) / 2);
+  const SensorNoise at250 = nexus.atIso(250);
+  EXPECT_NEAR(at250.red.a, 0.75 * at200.red.a + 0.25 * at400.red.a, 1e-18);
+}
+
+TEST(NoiseProfiles, ErrorsNameTheFileAndTheProblem) {
+  const auto nexus = io::readCameraNoiseProfile(excerpt(), "LGE Nexus 5");
+  const std::string outside = errorOf([&] { nexus.atIso(6400); });
+  EXPECT_NE(outside.find(excerpt().string()), std::string::npos) << outside;
+  EXPECT_NE(outside.find("ISO 100–3200"), std::string::npos) << outside;
+  const std::string absent = errorOf([] { io::readCameraNoiseProfile(excerpt(), "Canon EOS 5D"); });
+  EXPECT_NE(absent.find(excerpt().string()), std::string::npos) << absent;
+  EXPECT_NE(absent.find("did you mean: Canon EOS 5D Mark II"), std::string::npos) << absent;
+  TempDir dir;
+  {
+    std::ofstream(dir / "broken.json") << "{\"noiseprofiles\": [";
+    std::ofstream(dir / "layout.json") << "{\"noiseprofiles\": [{\"maker\": \"X\", \"models\": [{\"model\": \"Y\", "
+                                          "\"profiles\": [{\"iso\": 100, \"a\": [1]}]}]}]}";
+  }
+  const std::string broken = errorOf([&] { io::readCameraNoiseProfile(dir / "broken.json", "X Y"); });
+  EXPECT_NE(broken.find((dir / "broken.json").string() + ": invalid JSON"), std::string::npos) << broken;
+  const std::string layout = errorOf([&] { io::readCameraNoiseProfile(dir / "layout.json", "X Y"); });
+  EXPECT_NE(layout.find((dir / "layout.json").string() + ": unexpected noise-profile layout"), std::string::npos)
+      << layout;
+  const std::string missing = errorOf([&] { io::readCameraNoiseProfile(dir / "none.json", "X Y"); });
+  EXPECT_NE(missing.find("none.json: cannot open"), std::string::npos) << missing;
+}
+
+TEST(NoiseProfiles, ListsTheExcerptsCameras) {
+  const auto names = io::listNoiseProfileCameras(excerpt());
+  EXPECT_EQ(names, (std::vector<std::string>{"Canon EOS 5D Mark II", "Canon PowerShot G10", "LGE Nexus 5", "Nikon D200"}));
+}
+
+TEST(NoiseProfiles, TheExcerptMatchesTheFullDarktableDatabase) {
+  const fs::path shared = sharedData();
+  if (shared.empty() || !fs::exists(shared / "noise_profiles" / "noiseprofiles.json"))
+    GTEST_SKIP() << "../shared/data absent";
+  for (const auto& camera : io::listNoiseProfileCameras(excerpt())) {
+    const auto a = io::readCameraNoiseProfile(excerpt(), camera);
+    const auto b = io::readCameraNoiseProfile(shared / "noise_profiles" / "noiseprofiles.json", camera);
+    ASSERT_EQ(a.by_iso.size(), b.by_iso.size()) << camera;
+    for (size_t i = 0; i < a.by_iso.size(); ++i) {
+      EXPECT_EQ(a.by_iso[i].first, b.by_iso[i].first) << camera;
+      EXPECT_EQ(a.by_iso[i].second.green.a, b.by_iso[i].second.green.a) << camera;
+      EXPECT_EQ(a.by_iso[i].second.red.b, b.by_iso[i].second.red.b) << camera;
+    }
+  }
+}
+
+// A flat grey photo through a linear φ, a 1-px kernel and no motion: each shot's pixels are its irradiance plus
+// the planted noise (plus 8-bit rounding, variance 1/12 DN²), so mean and variance can be checked per channel.
+TEST(RealRegimeSimulation, SharpShotIsUnderexposedByRAndCarriesThePlantedNoisePerChannel) {
+  const cv::Mat photo(256, 256, CV_8UC3, cv::Scalar(128, 128, 128));
+  const cv::Mat kernel = cv::Mat::ones(1, 1, CV_64F);
+  HandheldPairOptions options;
+  options.ratio = 4;
+  options.shift_x = options.shift_y = options.rotation_deg = 0;
+  options.normally_exposed = HandheldPairOptions::NormallyExposed::Blurred;
+  options.sharp_noise = SensorNoise{{2e-3, 4e-5}, {1e-3, 2e-5}, {5e-4, 1e-5}};  // red, green, blue
+  options.blurred_noise = SensorNoise{{2e-4, 2e-6}, {1e-4, 1e-6}, {3e-4, 4e-6}};
+  const HandheldPair pair = makeHandheldPair(photo, GammaModel{1.0}, kernel, options);
+  const double quantisation = 1.0 / (12 * 255.0 * 255.0);
+  struct Shot {
+    const cv::Mat& image;
+    double irradiance;
+    const SensorNoise& noise;
+  };
+  for (const Shot& shot : {Shot{pair.sharp, options.exposure / options.ratio, *options.sharp_noise},
+                           Shot{pair.blurred, options.exposure, *options.blurred_noise}}) {
+    std::vector<cv::Mat> planes;
+    cv::split(shot.image, planes);
+    const PoissonGaussian bgr[] = {shot.noise.blue, shot.noise.green, shot.noise.red};
+    for (int c = 0; c < 3; ++c) {
+      cv::Mat unit;
+      planes[static_cast<size_t>(c)].convertTo(unit, CV_64F, 1 / 255.0);
+      cv::Scalar mean, stddev;
+      cv::meanStdDev(unit, mean, stddev);
+      const double expected = bgr[c].variance(shot.irradiance) + quantisation;
+      EXPECT_NEAR(mean[0], shot.irradiance, 0.002) << "plane " << c;
+      EXPECT_NEAR(stddev[0] * stddev[0] / expected, 1.0, 0.03) << "plane " << c << " at x = " << shot.irradiance;
+    }
+  }
+}
+
+TEST(RealRegimeSimulation, BenchPairsWritesTheNominalRatioAndTheIsosInExifAndTruth) {
+  TempDir dir;
+  const auto result = run("'" + crfcalBinary().string() + "' bench pairs --pairs-only --regime real --ratio 8 " +
+                          "--image '" + (samples() / "effects" / "window.jpg").string() + "' --max-side 160 " +
+                          "--kernel levin:1 --crf gamma:2.2 --noise-profiles '" + excerpt().string() + "' -o '" +
+                          (dir / "out").string() + "'");
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  std::ifstream in(dir / "out" / "case1" / "truth.json");
+  const nlohmann::json truth = nlohmann::json::parse(in);
+  EXPECT_EQ(truth.at("regime"), "real");
+  EXPECT_EQ(truth.at("noise_camera"), "LGE Nexus 5");
+  EXPECT_EQ(truth.at("iso_blurred").get<double>(), 100);
+  EXPECT_EQ(truth.at("iso_sharp").get<double>(), 800);
+  EXPECT_NEAR(truth.at("exif_ratio").get<double>(), 8 * 1.04, 1e-9);  // the bench's deliberate 4 % EXIF error
+  // What a user's calibrate reads back from the files' EXIF (Sec. 4, footnote 4).
+  const ExifExposure es = io::readExif(dir / "out" / "case1" / "sharp.jpg");
+  const ExifExposure eb = io::readExif(dir / "out" / "case1" / "blurred.jpg");
+  EXPECT_EQ(*es.iso, 800);
+  EXPECT_NEAR(exposureRatio(es, eb).ratio(), 8 * 1.04, 8 * 1.04 * 0.003);  // EXIF stores the long time to 1 ms
+  // The sharp shot is the darker one, by about r where nothing clips.
+  const cv::Mat sharp = cv::imread((dir / "out" / "case1" / "sharp.jpg").string());
+  const cv::Mat blurred = cv::imread((dir / "out" / "case1" / "blurred.jpg").string());
+  EXPECT_LT(cv::mean(sharp)[1] * 1.5, cv::mean(blurred)[1]);
+}
+
+TEST(RealRegimeSimulation, AutoRegimeKeepsRatiosUpToTwoInTheSharpNormalRegime) {
+  TempDir dir;
+  const auto result = run("'" + crfcalBinary().string() + "' bench pairs --pairs-only --ratio 2 4 " + "--image '" +
+                          (samples() / "effects" / "window.jpg").string() + "' --max-side 160 --kernel levin:1 " +
+                          "--crf gamma:2.2 --noise-profiles '" + excerpt().string() + "' -o '" + (dir / "out").string() + "'");
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  std::ifstream in2(dir / "out" / "case1" / "truth.json"), in4(dir / "out" / "case2" / "truth.json");
+  const nlohmann::json r2 = nlohmann::json::parse(in2), r4 = nlohmann::json::parse(in4);
+  EXPECT_FALSE(r2.contains("regime"));  // the r = 1, 2 benches of RESULTS: sharp shot at ISO 800, 1/100 s
+  EXPECT_EQ(*io::readExif(dir / "out" / "case1" / "sharp.jpg").iso, 800);
+  EXPECT_EQ(r4.at("regime"), "real");
+  EXPECT_EQ(r4.at("iso_sharp").get<double>(), 400);
+}
+
+}  // namespace
+}  // namespace crfcal::test
