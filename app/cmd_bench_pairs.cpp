@@ -47,12 +47,12 @@ struct PairsArgs {
   int kernel_size = 35;
   std::string channels = "g";
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;
-  std::string noise_handling = toString(PairCalibrationOptions{}.fit.noise);
+  std::string noise_handling = toString(PairCalibrationOptions{}.fit.experimental.noise);
   bool fix_ratio = false;
   bool always_fit_ratio = false;
   double irradiance_kernel_lambda = PairCalibrationOptions{}.irradiance_kernel_lambda;
   bool unweighted_irradiance_kernel = false;
-  std::string shoulder = PairCalibrationOptions{}.fit.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
+  std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   bool pairs_only = false;
 };
 
@@ -162,12 +162,12 @@ int runPairs(const PairsArgs& args) {
             PairCalibrationOptions options;
             options.kernel.kernel_size = args.kernel_size;
             options.rgb = args.channels == "rgb";
-            options.fit.initial_ratio = loaded.exif_ratio->ratio();
+            options.fit.nominal_ratio = loaded.exif_ratio->ratio();
             options.fit.ratio_prior_sigma = args.ratio_prior;
-            options.fit.noise = noiseHandlingFromString(args.noise_handling);
+            options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
             options.fit.fit_ratio = !args.fix_ratio;
             options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
-            options.fit.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
+            options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
             options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
             options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
             const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);

@@ -1195,9 +1195,9 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
       const cv::Mat& Ic = spec.mixing ? mixedI[c] : in.sharp.at(in.channels[c]);
       CrfFitOptions fo = in.fit;
       fo.progress = nullptr;
-      if (ff[c].ok && cf[c].scale > 0) fo.initial_ratio = cf[c].scale;  // the extended model's r as the start
+      if (ff[c].ok && cf[c].scale > 0) fo.nominal_ratio = cf[c].scale;  // the extended model's r as the start
       if (fixed_ratio > 0) {
-        fo.initial_ratio = fixed_ratio;
+        fo.nominal_ratio = fixed_ratio;
         fo.fit_ratio = false;
       }
       if (spec.clipping && ff[c].ok && ff[c].clip > 0 && ff[c].clip <= 1) {  // the plateau is treated like saturation
@@ -1495,7 +1495,7 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
           CrfFitOptions fo = in.fit;
           fo.progress = nullptr;
           fo.fit_ratio = false;
-          fo.initial_ratio = in.exif_ratio;
+          fo.nominal_ratio = in.exif_ratio;
           fixed_curves[c] = makeCurve(fitInverseCrf(in.sharp.at(in.channels[c]), in.blurred.at(in.channels[c]), K, fo).inverse_crf);
         }
         const Problem fixed_problem(collect(p, fixed_curves, std::vector<double>(nc, in.exif_ratio), K, layout, options,
@@ -1554,7 +1554,7 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
       e.detail = fmt("noise std of I from %.1f/255 (level %.2f) ", 255 * sg.front(), lv.front()) +
                  fmt("to %.1f/255 (level %.2f); variance contrast %.2f", 255 * sg.back(), lv.back(), nt.contrast);
       if (noise_detected)
-        e.detail += in.fit.noise == NoiseHandling::none
+        e.detail += in.fit.experimental.noise == NoiseHandling::none
                         ? "; phi from the base fit (noise handling none: pixels are selected by B alone, so sigma(v) "
                           "would only change the weights)"
                         : "; sigma(v) handed to the refit (noise_sigma_per_level)";
@@ -1564,7 +1564,7 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
   // φ from the extended model.
   const bool blur_refit = spatial && entry("spatially_varying_blur").detected;
   const bool level_refit = current.vignetting || current.offset || current.mixing || current.clipping || blur_refit;
-  const bool noise_refit = noise_detected && in.fit.noise != NoiseHandling::none;
+  const bool noise_refit = noise_detected && in.fit.experimental.noise != NoiseHandling::none;
   // A wrong EXIF ratio can also trap the fitter (it starts from r_EXIF): refit from the diagnostics' ratio.
   bool ratio_refit = false;
   if (entry("exposure_ratio_mismatch").detected)
