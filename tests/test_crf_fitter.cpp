@@ -296,5 +296,24 @@ TEST(CrfFit, OptionsAreChecked) {
   EXPECT_THROW(noiseHandlingFromString("median"), InvalidInput);
 }
 
+TEST(CrfFit, ExperimentalOptionsAreCheckedAndDefaultToCrfcalsMethod) {
+  const CrfFitOptions defaults;
+  EXPECT_EQ(defaults.experimental.objective, CrfObjective::moments);
+  EXPECT_EQ(defaults.experimental.optimizer, CrfOptimizer::levenberg_marquardt);
+  EXPECT_EQ(defaults.experimental.noise, NoiseHandling::none);
+  EXPECT_FALSE(defaults.experimental.variance_correction);
+  EXPECT_FALSE(defaults.experimental.shoulder_follows_emor_mean);
+  EXPECT_EQ(CrfFitOptions::seed().experimental.objective, CrfObjective::seed_intensity);
+  CrfFitOptions options;
+  options.experimental.ratio_rounds = 0;
+  EXPECT_THROW(options.check(), InvalidInput);
+  options = {};
+  options.experimental.tau1 = -0.1;
+  EXPECT_THROW(options.check(), InvalidInput);
+  options = {};
+  options.experimental.debias_regularization = 0;
+  EXPECT_THROW(options.check(), InvalidInput);
+}
+
 }  // namespace
 }  // namespace crfcal
