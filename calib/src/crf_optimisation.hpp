@@ -24,7 +24,8 @@ struct Minimum {
 Minimum nelderMead(const std::vector<double>& x0, const std::function<double(const std::vector<double>&)>& objective,
                    int max_evaluations, double step, double ftol = 1e-10);
 
-// Levenberg–Marquardt on a residual vector. `residuals(x, r, jac)` returns false outside the domain.
+// Levenberg–Marquardt on a residual vector. `residuals(x, r, jac)` returns false outside the domain. Hand-written
+// for a measured reason (see crf_optimisation.cpp: Eigen's MINPACK LM changes the bench tables).
 using ResidualFn = std::function<bool(const Eigen::VectorXd& x, Eigen::VectorXd& r, Eigen::MatrixXd* jac)>;
 struct LmResult {
   Eigen::VectorXd x;
