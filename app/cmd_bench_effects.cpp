@@ -155,7 +155,7 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
     auto calibrate = [&](const PlantingOptions& po) {
       const PlantedPair pair = plantEffect(s.photo, s.truth, s.kernel, po);
       PairCalibrationOptions options = s.calibration;
-      options.fit.initial_ratio = pair.exif_ratio;
+      options.fit.nominal_ratio = pair.exif_ratio;
       options.effects.enabled = effects_on;
       options.effects.min_gain = args.min_gain;
       options.effects.min_z = args.min_z;

@@ -56,12 +56,12 @@ struct PairsArgs {
   int kernel_size = 35;
   std::string channels = "g";
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;
-  std::string noise_handling = toString(PairCalibrationOptions{}.fit.noise);
+  std::string noise_handling = toString(PairCalibrationOptions{}.fit.experimental.noise);
   bool fix_ratio = false;
   bool always_fit_ratio = false;
   double irradiance_kernel_lambda = PairCalibrationOptions{}.irradiance_kernel_lambda;
   bool unweighted_irradiance_kernel = false;
-  std::string shoulder = PairCalibrationOptions{}.fit.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
+  std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   bool pairs_only = false;
   bool force = false;  // write into an output directory holding other files (never deletes them)
   std::string regime = "auto";  // auto | sharp-normal | real (see the top of this file); auto = real for r > 2
@@ -278,12 +278,12 @@ int runPairs(const PairsArgs& args) {
             PairCalibrationOptions options;
             options.kernel.kernel_size = args.kernel_size;
             options.rgb = args.channels == "rgb";
-            options.fit.initial_ratio = loaded.exif_ratio->ratio();
+            options.fit.nominal_ratio = loaded.exif_ratio->ratio();
             options.fit.ratio_prior_sigma = args.ratio_prior;
-            options.fit.noise = noiseHandlingFromString(args.noise_handling);
+            options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
             options.fit.fit_ratio = !args.fix_ratio;
             options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
-            options.fit.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
+            options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
             options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
             options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
             const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);

@@ -43,9 +43,9 @@ struct CalibrateArgs {
   bool no_effects = false;
   double irradiance_kernel_lambda = PairCalibrationOptions{}.irradiance_kernel_lambda;
   bool unweighted_irradiance_kernel = false;
-  std::string shoulder = PairCalibrationOptions{}.fit.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
+  std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;  // σ of log r around EXIF/--ratio
-  std::string noise_handling = toString(PairCalibrationOptions{}.fit.noise);
+  std::string noise_handling = toString(PairCalibrationOptions{}.fit.experimental.noise);
   bool quiet = false;
   std::string raw_truth;            // RAW (or linear image) of one of the two shots
   std::string raw_truth_of = "auto";  // which shot it is: auto (EXIF), sharp, blurred
@@ -236,15 +236,15 @@ int runCalibrate(const CalibrateArgs& args) {
   options.rgb = args.channels == "rgb";
   options.rounds = args.rounds;
   options.register_pair = !args.no_register;
-  options.fit.initial_ratio = ratio;
+  options.fit.nominal_ratio = ratio;
   options.fit.fit_ratio = !args.fix_ratio;
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
   options.effects.enabled = !args.no_effects;
   options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
-  options.fit.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
+  options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
   options.fit.ratio_prior_sigma = args.ratio_prior;
-  options.fit.noise = noiseHandlingFromString(args.noise_handling);
+  options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
   options.fit.model = args.model == "ggcm" ? CrfModelChoice::ggcm
                       : args.model == "emor" ? CrfModelChoice::emor
                                              : CrfModelChoice::automatic;

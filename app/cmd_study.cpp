@@ -452,7 +452,7 @@ int runRatio(const StudyArgs& args) {
       for (size_t e = 0; e < eps.size(); ++e) {
         for (int mode = 0; mode < 2; ++mode) {
           CrfFitOptions fo;
-          fo.initial_ratio = true_r * (1 + eps[e]);
+          fo.nominal_ratio = true_r * (1 + eps[e]);
           fo.fit_ratio = mode == 1;
           const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, kernel, fo);
           const double err = curveRmse(fit.inverse_crf, truth);
@@ -679,21 +679,21 @@ int runNoise(const StudyArgs& args) {
     const CrfFitResult def = fitInverseCrf(pair.sharp, pair.blurred, kernel, base);
     err[0].push_back(curveRmse(def.inverse_crf, truth));
     CrfFitOptions homo = base;
-    homo.noise = NoiseHandling::debias;
+    homo.experimental.noise = NoiseHandling::debias;
     homo.noise_sigma = -1;  // estimated from I (one σ)
     err[1].push_back(curveRmse(fitInverseCrf(pair.sharp, pair.blurred, kernel, homo).inverse_crf, truth));
     // σ(v) from the sensor model pushed through the first-pass fitted curve, on the fitter's level grid.
     const ResponseCurve fitted = ResponseCurve::fromSamples(def.inverse_crf);
     const int levels = std::max(naturalLevels(pair.sharp), naturalLevels(pair.blurred));  // the fitter's grid
     CrfFitOptions per_level = base;
-    per_level.noise = NoiseHandling::debias;
+    per_level.experimental.noise = NoiseHandling::debias;
     per_level.noise_sigma_per_level.resize(static_cast<size_t>(levels));
     for (int v = 0; v < levels; ++v)
       per_level.noise_sigma_per_level[static_cast<size_t>(v)] =
           std::min(0.5, intensityNoiseSigma(fitted, so.sharp_noise, static_cast<double>(v) / (levels - 1)));
     err[2].push_back(curveRmse(fitInverseCrf(pair.sharp, pair.blurred, kernel, per_level).inverse_crf, truth));
     CrfFitOptions den = base;
-    den.noise = NoiseHandling::denoise;
+    den.experimental.noise = NoiseHandling::denoise;
     err[3].push_back(curveRmse(fitInverseCrf(pair.sharp, pair.blurred, kernel, den).inverse_crf, truth));
     ++done;
     progress.update(double(done) / double(cases.size()), std::to_string(done) + "/" + std::to_string(cases.size()));

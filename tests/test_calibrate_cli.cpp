@@ -476,7 +476,7 @@ TEST(CalibrateSmallBlur, RatioIsHeldAtExifUnlessAlwaysFitted) {
   options.register_pair = false;
   options.rgb = false;
   options.effects.enabled = false;
-  options.fit.initial_ratio = 2.1;  // EXIF 5 % off
+  options.fit.nominal_ratio = 2.1;  // EXIF 5 % off
   const PairCalibrationResult held = calibratePair(sharp, blurred, options);
   EXPECT_TRUE(held.ratio_fixed_by_small_blur);
   EXPECT_GT(std::abs(held.ratio_images_small_blur / 2.1 - 1), options.effects.ratio_tolerance);
@@ -495,11 +495,11 @@ TEST(CalibrateSmallBlur, RatioIsHeldAtExifUnlessAlwaysFitted) {
   same.sharp.convertTo(sharp, CV_8U, 255);
   same.blurred.convertTo(blurred, CV_8U, 255);
   options.fix_ratio_when_blur_is_small = true;
-  options.fit.initial_ratio = 1.04;
+  options.fit.nominal_ratio = 1.04;
   const PairCalibrationResult unit = calibratePair(sharp, blurred, options);
   EXPECT_FALSE(unit.ratio_fixed_by_small_blur);
   EXPECT_NEAR(unit.fits.at("G").ratio, 1, 0.02);
-  options.fit.initial_ratio = 2.1;
+  options.fit.nominal_ratio = 2.1;
   // a real blur keeps r free
   const SimulationResult big = simulatePair(0.45 * test::levinImage(1), GammaModel{2.2}, test::levinKernel(3), sim);
   big.sharp.convertTo(sharp, CV_8U, 255);
@@ -524,7 +524,7 @@ TEST(CalibrateRealPairs, PhonePairsGreenCurvesWithinPointOneRms) {
     ASSERT_TRUE(pair.exif_ratio.has_value());
     PairCalibrationOptions options;
     options.rgb = false;
-    options.fit.initial_ratio = pair.exif_ratio->ratio();
+    options.fit.nominal_ratio = pair.exif_ratio->ratio();
     const PairCalibrationResult result = calibratePair(pair.sharp.image, pair.blurred.image, options);
     curves.push_back(result.fits.at("G").inverse_crf);
   }

@@ -111,10 +111,10 @@ TEST(CrfFit, RecoversRatioFromInitialValueOffBy20Percent) {
   sim.bits = 16;
   const SimulationResult pair = simulatePair(test::levinImage(3), GammaModel{2.2}, test::levinKernel(2), sim);
   CrfFitOptions options;
-  options.initial_ratio = 0.96;  // 20 % off
+  options.nominal_ratio = 0.96;  // 20 % off
   const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(2), options);
   EXPECT_NEAR(fit.ratio, 0.8, 0.008) << fit.summary();
-  EXPECT_DOUBLE_EQ(fit.initial_ratio, 0.96);
+  EXPECT_DOUBLE_EQ(fit.nominal_ratio, 0.96);
   EXPECT_LT(curveRmse(fit.model, GammaModel{2.2}), 5e-3) << fit.summary();
 }
 
@@ -179,10 +179,10 @@ TEST(CrfFit, NoiseHandlingReducesBiasOnNoisySharpImage) {
   const GammaModel truth{2.2};
   const SimulationResult pair = simulatePair(test::levinImage(4), truth, test::levinKernel(2), sim);
   CrfFitOptions plain;
-  plain.noise = NoiseHandling::none;
+  plain.experimental.noise = NoiseHandling::none;
   plain.model = CrfModelChoice::ggcm;
   CrfFitOptions aware = plain;
-  aware.noise = NoiseHandling::debias;
+  aware.experimental.noise = NoiseHandling::debias;
   const CrfFitResult a = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(2), plain);
   const CrfFitResult b = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(2), aware);
   EXPECT_NEAR(b.noise_sigma, std::sqrt(0.005), 0.15 * std::sqrt(0.005));
@@ -208,10 +208,10 @@ struct SmallBlurPair {
 TEST(CrfFit, JensenCorrectionRemovesTheNoiseBiasOfASmallBlurPair) {
   const SmallBlurPair p;
   CrfFitOptions plain;
-  plain.initial_ratio = 2.2;  // 10 % off
+  plain.nominal_ratio = 2.2;  // 10 % off
   plain.noise_sigma = 0.02;
   CrfFitOptions jensen = plain;
-  jensen.noise = NoiseHandling::jensen;
+  jensen.experimental.noise = NoiseHandling::jensen;
   const CrfFitResult a = fitInverseCrf(p.pair.sharp, p.pair.blurred, p.kernel, plain);
   const CrfFitResult b = fitInverseCrf(p.pair.sharp, p.pair.blurred, p.kernel, jensen);
   EXPECT_LT(std::abs(b.ratio / 2 - 1), 0.03) << b.summary();
@@ -223,7 +223,7 @@ TEST(CrfFit, RatioPriorPullsOnlyAnUndeterminedRatio) {
   // Without a usable blur signal the prior decides (tiny σ: r stays at the centre); with a real blur the images do.
   const SmallBlurPair p;
   CrfFitOptions options;
-  options.initial_ratio = 2.6;
+  options.nominal_ratio = 2.6;
   options.noise_sigma = 0.02;
   const CrfFitResult free_fit = fitInverseCrf(p.pair.sharp, p.pair.blurred, p.kernel, options);
   options.ratio_prior_sigma = 1e-3;
@@ -238,7 +238,7 @@ TEST(CrfFit, RatioPriorPullsOnlyAnUndeterminedRatio) {
   sim.bits = 16;
   const SimulationResult sharp_blur = simulatePair(test::levinImage(3), GammaModel{2.2}, test::levinKernel(2), sim);
   CrfFitOptions exif;
-  exif.initial_ratio = 0.96;  // EXIF 20 % off
+  exif.nominal_ratio = 0.96;  // EXIF 20 % off
   exif.ratio_prior_sigma = 0.2;
   const CrfFitResult fit = fitInverseCrf(sharp_blur.sharp, sharp_blur.blurred, test::levinKernel(2), exif);
   EXPECT_NEAR(fit.ratio, 0.8, 0.01) << fit.summary();
@@ -252,7 +252,7 @@ TEST(CrfFit, ShoulderReferenceKeepsExactDataExact) {
   const GammaModel truth{2.2};
   const SimulationResult pair = simulatePair(0.2 * test::levinImage(2), truth, test::levinKernel(3), sim);
   CrfFitOptions options;
-  options.shoulder_follows_emor_mean = true;
+  options.experimental.shoulder_follows_emor_mean = true;
   const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(3), options);
   EXPECT_LT(fit.covered_levels.second, 0.5 * (fit.levels - 1)) << fit.summary();
   EXPECT_LT(curveRmse(fit.model, truth), 5e-3) << fit.summary();
@@ -283,7 +283,7 @@ TEST(NoiseEstimation, ProfileFollowsSignalDependentNoise) {
 
 TEST(CrfFit, OptionsAreChecked) {
   CrfFitOptions options;
-  options.initial_ratio = 0;
+  options.nominal_ratio = 0;
   EXPECT_THROW(options.check(), InvalidInput);
   options = {};
   options.emor_terms = 0;
@@ -294,6 +294,25 @@ TEST(CrfFit, OptionsAreChecked) {
   EXPECT_THROW(options.check(), InvalidInput);
   EXPECT_EQ(noiseHandlingFromString("jensen"), NoiseHandling::jensen);
   EXPECT_THROW(noiseHandlingFromString("median"), InvalidInput);
+}
+
+TEST(CrfFit, ExperimentalOptionsAreCheckedAndDefaultToCrfcalsMethod) {
+  const CrfFitOptions defaults;
+  EXPECT_EQ(defaults.experimental.objective, CrfObjective::moments);
+  EXPECT_EQ(defaults.experimental.optimizer, CrfOptimizer::levenberg_marquardt);
+  EXPECT_EQ(defaults.experimental.noise, NoiseHandling::none);
+  EXPECT_FALSE(defaults.experimental.variance_correction);
+  EXPECT_FALSE(defaults.experimental.shoulder_follows_emor_mean);
+  EXPECT_EQ(CrfFitOptions::seed().experimental.objective, CrfObjective::seed_intensity);
+  CrfFitOptions options;
+  options.experimental.ratio_rounds = 0;
+  EXPECT_THROW(options.check(), InvalidInput);
+  options = {};
+  options.experimental.tau1 = -0.1;
+  EXPECT_THROW(options.check(), InvalidInput);
+  options = {};
+  options.experimental.debias_regularization = 0;
+  EXPECT_THROW(options.check(), InvalidInput);
 }
 
 }  // namespace

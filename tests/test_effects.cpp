@@ -67,7 +67,7 @@ PairCalibrationOptions calibrationOptions(const PairSetup& s, const PlantedPair&
   } else {
     options.given_kernel = levinKernel(s.kernel);
   }
-  options.fit.initial_ratio = pair.exif_ratio;
+  options.fit.nominal_ratio = pair.exif_ratio;
   return options;
 }
 

@@ -33,7 +33,7 @@ Evaluation fixedRatioEvaluation(const EffectSearch& search, const Spec& fixed) {
       CrfFitOptions fo = in.fit;
       fo.progress = nullptr;
       fo.fit_ratio = false;
-      fo.initial_ratio = in.exif_ratio;
+      fo.nominal_ratio = in.exif_ratio;
       const cv::Mat& I = in.sharp.at(in.channels[c]);
       const cv::Mat& B = in.blurred.at(in.channels[c]);
       fixed_curves[c] = makeCurve(fitInverseCrf(I, B, search.K, fo).inverse_crf);

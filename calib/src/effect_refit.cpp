@@ -63,9 +63,9 @@ CrfFitOptions refitOptions(const EffectSearch& search, const Coefficients& cf, c
                            double fixed_ratio) {
   CrfFitOptions fo = search.in.fit;
   fo.progress = nullptr;
-  if (ff.ok && cf.scale > 0) fo.initial_ratio = cf.scale;  // the extended model's r as the start
+  if (ff.ok && cf.scale > 0) fo.nominal_ratio = cf.scale;  // the extended model's r as the start
   if (fixed_ratio > 0) {
-    fo.initial_ratio = fixed_ratio;
+    fo.nominal_ratio = fixed_ratio;
     fo.fit_ratio = false;
   }
   return fo;

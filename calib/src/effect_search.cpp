@@ -219,7 +219,7 @@ void refitWithSelectedModel(EffectSearch& search) {
   const Spec& current = search.current;
   const bool blur_refit = search.entry("spatially_varying_blur").detected;  // detected only when tested
   const bool level_refit = current.vignetting || current.offset || current.mixing || current.clipping || blur_refit;
-  const bool noise_refit = search.noise_detected && in.fit.noise != NoiseHandling::none;
+  const bool noise_refit = search.noise_detected && in.fit.experimental.noise != NoiseHandling::none;
   bool ratio_refit = false;
   if (search.entry("exposure_ratio_mismatch").detected)
     for (int c = 0; c < nc; ++c) {

@@ -208,7 +208,7 @@ void run(EffectSearch& search) {
   // Without σ in the fitter (noise handling none: the pixels are selected by B alone) the noise law only changes
   // the weights; what remains is the second-order Jensen bias of φ(I), as for homoscedastic noise of the same power.
   if (search.noise_detected)
-    e.detail += in.fit.noise == NoiseHandling::none
+    e.detail += in.fit.experimental.noise == NoiseHandling::none
                     ? "; phi from the base fit (noise handling none: pixels are selected by B alone, so sigma(v) "
                       "would only change the weights)"
                     : "; sigma(v) handed to the refit (noise_sigma_per_level)";

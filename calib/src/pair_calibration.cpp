@@ -437,7 +437,7 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
     result.fits["G"] = fitChannel("G", K);
     // With a blur too small to separate φ^γ, r^γ from φ, r the images cannot give r (log r moves with γ·log r):
     // if theirs disagrees with EXIF / --ratio beyond the tolerance of nominal EXIF values, r is held at that value.
-    const double disagreement = std::abs(result.fits["G"].ratio / fit_options.initial_ratio - 1);
+    const double disagreement = std::abs(result.fits["G"].ratio / fit_options.nominal_ratio - 1);
     if (fit_options.fit_ratio && options.fix_ratio_when_blur_is_small && first_blur_radius < options.min_blur_radius &&
         disagreement > options.effects.ratio_tolerance) {
       result.ratio_images_small_blur = result.fits["G"].ratio;
@@ -492,7 +492,7 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
     ei.fits = result.fits;
     ei.kernel = K;
     ei.kernel_estimated = result.kernel_estimated;
-    ei.exif_ratio = fit_options.initial_ratio;
+    ei.exif_ratio = fit_options.nominal_ratio;
     ei.centre = cv::Point2d((sharp.cols - 1) / 2.0 - window.x, (sharp.rows - 1) / 2.0 - window.y);
     ei.corner_radius = 0.5 * std::hypot(sharp.cols, sharp.rows);
     ei.valid = overlap(window);
@@ -504,7 +504,7 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
         result.base_fits = result.fits;
         for (const auto& [name, fit] : result.effects.fits) {
           // A fixed r (--fix-ratio) is the user's constraint: an extended model that moved it is not adopted.
-          if (!fit_options.fit_ratio && std::abs(fit.ratio - fit_options.initial_ratio) > 1e-9 * fit_options.initial_ratio) {
+          if (!fit_options.fit_ratio && std::abs(fit.ratio - fit_options.nominal_ratio) > 1e-9 * fit_options.nominal_ratio) {
             result.warnings.push_back("channel " + name + ": the effects' refit changed the fixed r (" +
                                       std::to_string(fit.ratio) + "); kept the fit with the fixed r");
             continue;
@@ -537,8 +537,8 @@ PairCalibrationResult calibrateAligned(const cv::Mat& sharp, const cv::Mat& blur
                     "the blur is small (kernel RMS radius %.2f px): phi^g with r^g fit alike, and the images' r (%.3g) "
                     "disagrees with %.4g (EXIF or --ratio) by more than %.0f %%: r is held at %.4g "
                     "(--always-fit-ratio to fit it)",
-                    first_blur_radius, result.ratio_images_small_blur, fit_options.initial_ratio,
-                    100 * options.effects.ratio_tolerance, fit_options.initial_ratio);
+                    first_blur_radius, result.ratio_images_small_blur, fit_options.nominal_ratio,
+                    100 * options.effects.ratio_tolerance, fit_options.nominal_ratio);
       result.warnings.push_back(buffer);
     } else if (result.blur_radius < options.min_blur_radius && fit_options.fit_ratio) {
       std::snprintf(buffer, sizeof buffer,

@@ -55,11 +55,12 @@ struct CrfFitOptions {
   CrfModelChoice model = CrfModelChoice::automatic;
   int ggcm_degree = 4;   // n of Eq. 19 ("n = 4 is usually accurate enough", Sec. 4)
   int emor_terms = 5;    // EMoR basis curves (Grossberg & Nayar: 3–5 reach DoRF accuracy)
-  double tau1 = 0.02;    // Eq. 23: W = Γ where Γ > τ1 (r = 1)
-  double tau2 = 0.2;     // Eq. 24: W = Imax − Imin where > τ2 (r ≠ 1)
-  double initial_ratio = 1.0;  // r from EXIF (footnote 4) or given
+  // The nominal exposure ratio r of B to I: from EXIF (footnote 4) or given (--ratio). The start of r (the seed's
+  // Eq. 25 alternation, the moments' joint fit), its value when fit_ratio is false, and the centre of the optional
+  // ratio prior.
+  double nominal_ratio = 1.0;
   bool fit_ratio = true;       // seed: Eq. 25 alternation; moments: r estimated jointly with φ
-  // moments, r fitted: σ of a Gaussian prior on log r centred on initial_ratio (0: off, r from the images alone).
+  // moments, r fitted: σ of a Gaussian prior on log r centred on nominal_ratio (0: off, r from the images alone).
   // φ^γ with r^γ fits a plain two-exposure pair equally well (the exponential ambiguity); only the blur
   // inconsistency (Sec. 3) separates them, so with little blur the images barely determine r and the fit drifts
   // along that valley. The prior row is scaled by the residual variance of the prior-free fit, so it is a posterior:
@@ -69,20 +70,12 @@ struct CrfFitOptions {
   // (`calibrate --ratio-prior 0.2`). Off by default: measured, it does not move the biased low r of small-blur
   // pairs (the data determine it firmly) and it made the vivo curves agree less (docs/RESULTS.md#small-blur).
   double ratio_prior_sigma = 0;
-  CrfObjective objective = CrfObjective::moments;
-  CrfOptimizer optimizer = CrfOptimizer::levenberg_marquardt;  // for GGCM; EMoR is linear
   int multi_starts = 4;        // GGCM starts (EMoR projection + γ 2.2, 1.6, 3.0, 1.0)
-  NoiseHandling noise = NoiseHandling::none;  // debias helps only at σ² = 0.001 (measured); see the bench
   double noise_sigma = -1;     // std of I's noise, intensities in [0,1]; < 0: estimated (noise_estimation.hpp)
   // Optional signal-dependent noise of I: σ as a function of the clean level v = 0..levels−1 (size = the level
   // grid of the fit: 256 for 8-bit data, 1024 otherwise). Empty: homoscedastic `noise_sigma`. Used for the rows
   // of the debias transition matrix (noise_debias.hpp) and for the moment weights. Wrong size → InvalidInput.
   std::vector<double> noise_sigma_per_level;
-  // moments: continuously-updated GMM — every bin sum divided by its model standard deviation at the current φ
-  // (I's noise through the transition matrix + quantisation), so the squared noise adds a φ-independent constant;
-  // fitted from the least-squares solution; then GGCM vs EMoR by the lower CUE energy (equal parameter counts).
-  bool variance_correction = false;  // measured worse (docs/RESULTS.md#synthetic-benchmark); ablation only
-  double debias_regularization = 1e-4;  // λ of the deconvolution (noise_debias.hpp)
   double edge_threshold = 0.02;         // moments: local range of B over the kernel support > this
   int level_bins = 64;                  // moments: bins of B's level
   int position_bins = 2;                // moments: bins of the local min and of the local max of B over the support
@@ -95,19 +88,12 @@ struct CrfFitOptions {
   double exponent_smoothness = 1e-4;
   // moments: weight of the prior on the local exponent above the covered levels. Real CRFs compress highlights (a
   // shoulder: φ's local exponent rises towards x = 1, up to 4.5–19 on the ten Middlebury cameras), so a symmetric
-  // smoothness there is wrong (it raised `bench pairs` to 0.0217). With shoulder_follows_emor_mean = false a falling
-  // exponent costs this weight and a rising one is free: `bench synthetic` 0.0285/0.0308/0.0291 (no priors) →
-  // 0.0272/0.0305/0.0291 (docs/RESULTS.md#synthetic-benchmark). But then a pair whose data stop at x = 0.47 can put
-  // most of φ's scale into a steep rise above the data (a real phone pair: φ_G(0.47) = 0.055, 0.002 with r at EXIF).
+  // smoothness there is wrong (it raised `bench pairs` to 0.0217). With experimental.shoulder_follows_emor_mean =
+  // false a falling exponent costs this weight and a rising one is free: `bench synthetic` 0.0285/0.0308/0.0291 (no
+  // priors) → 0.0272/0.0305/0.0291 (docs/RESULTS.md#synthetic-benchmark). But then a pair whose data stop at x = 0.47
+  // can put most of φ's scale into a steep rise above the data (a real phone pair: φ_G(0.47) = 0.055, 0.002 with r
+  // at EXIF).
   double shoulder_prior = 1e-1;
-  // true: above the data φ's local exponent changes as the EMoR mean curve g0's does (the measured average shoulder
-  // of 201 real responses), each difference penalised with shoulder_prior. false (default): the one-sided prior
-  // (every rise free, a fall costs). Measured (docs/RESULTS.md#vivo): the mean shoulder makes curves that stop early
-  // agree (vivo green spread 0.216 → 0.049) and helps the seed benchmark's 8-bit reading (0.0081/0.0074/0.0064 →
-  // 0.0070/0.0061/0.0053), but where truth is known and the data stop early it is not better: a clipped Olympus
-  // E500 pair 0.0133 → 0.0563, the [0, 1] reading at σ² = 0.001 0.0272 → 0.0285, a pure power law at r = 1 worse.
-  // Real shoulders vary too much (local exponent up to 4.5–19) for the mean one to be a safe default.
-  bool shoulder_follows_emor_mean = false;
   // moments: the two priors above only break ties the data leave open. φ is fitted without them and with them; the
   // regularised fit is kept while its data energy is at most this factor times the unregularised one. Measured: on
   // noisy pairs the affine-equivalent curves differ by factors 0.9–2.6 (noise and the model's systematic misfit);
@@ -121,12 +107,38 @@ struct CrfFitOptions {
   double min_local_exponent = 0.25;
   double saturation_high = 254.5 / 255.0;  // B or I at/above: saturated (dilated by the kernel's support)
   double saturation_low = 0.5 / 255.0;     // B or I at/below: censored black (dilated likewise)
-  int ratio_rounds = 6;        // seed: alternations φ-step / r-step (Eq. 25) at most
   int max_evaluations = 1000;  // per Nelder–Mead run / LM iterations × 10
   int min_pixels = 200;        // fewer usable pixels: the pair has no edges → InvalidInput
   int max_pixels = 0;          // deterministic subsample above this (0: all pixels)
   int threads = 0;             // 0: OpenCV's default
   std::function<void(double fraction, const std::string& stage)> progress;  // optional
+
+  // Ablations and the seed's published method, kept for the benchmarks' comparisons (`bench synthetic`
+  // variants, `calibrate --noise-handling/--shoulder`). The defaults are crfcal's method; every other value was
+  // measured no better on the benchmarks (docs/RESULTS.md), except where noted.
+  struct Experimental {
+    CrfObjective objective = CrfObjective::moments;  // seed_intensity: the seed's Eq. 22 (with tau1, tau2, ratio_rounds)
+    CrfOptimizer optimizer = CrfOptimizer::levenberg_marquardt;  // for GGCM; EMoR is linear
+    double tau1 = 0.02;    // seed_intensity, Eq. 23: W = Γ where Γ > τ1 (r = 1)
+    double tau2 = 0.2;     // seed_intensity, Eq. 24: W = Imax − Imin where > τ2 (r ≠ 1)
+    int ratio_rounds = 6;  // seed_intensity: alternations φ-step / r-step (Eq. 25) at most
+    NoiseHandling noise = NoiseHandling::none;  // debias helps only at σ² = 0.001 (measured); see the bench
+    double debias_regularization = 1e-4;        // noise = debias: λ of the deconvolution (noise_debias.hpp)
+    // moments: continuously-updated GMM — every bin sum divided by its model standard deviation at the current φ
+    // (I's noise through the transition matrix + quantisation), so the squared noise adds a φ-independent
+    // constant; fitted from the least-squares solution; then GGCM vs EMoR by the lower CUE energy (equal parameter
+    // counts). Measured worse (docs/RESULTS.md#synthetic-benchmark).
+    bool variance_correction = false;
+    // true: above the data φ's local exponent changes as the EMoR mean curve g0's does (the measured average
+    // shoulder of 201 real responses), each difference penalised with shoulder_prior. false (default): the one-sided
+    // prior (every rise free, a fall costs). Measured (docs/RESULTS.md#vivo): the mean shoulder makes curves that
+    // stop early agree (vivo green spread 0.216 → 0.049) and helps the seed benchmark's 8-bit reading
+    // (0.0081/0.0074/0.0064 → 0.0070/0.0061/0.0053), but where truth is known and the data stop early it is not
+    // better: a clipped Olympus E500 pair 0.0133 → 0.0563, the [0, 1] reading at σ² = 0.001 0.0272 → 0.0285, a pure
+    // power law at r = 1 worse. Real shoulders vary too much (local exponent up to 4.5–19) for the mean one to be a
+    // safe default.
+    bool shoulder_follows_emor_mean = false;
+  } experimental;
 
   // The seed's method as published: Eq. 22 with Γ weights, GGCM n = 4, Nelder–Mead, no noise handling.
   static CrfFitOptions seed();
@@ -165,7 +177,7 @@ struct CrfFitResult {
   ResponseModel model;              // the chosen φ
   std::vector<double> inverse_crf;  // φ(i/1023), i = 0..1023
   double ratio = 1;                 // r (Eq. 4)
-  double initial_ratio = 1;
+  double nominal_ratio = 1;         // CrfFitOptions::nominal_ratio (EXIF or given)
   double ratio_images_only = 0;     // with a ratio prior: r of the prior-free EMoR fit (what the images alone say)
   double ratio_prior_scale = 0;     // with a ratio prior: the prior row's scale (0: the prior was not applied)
   // moments: relative rise of the data energy when φ, r move to φ^γ, r^γ with γ = 0.9 or 1.1 (the smaller of the

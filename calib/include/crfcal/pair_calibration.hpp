@@ -27,7 +27,7 @@ struct PairCalibrationOptions {
   RegistrationOptions registration;
   KernelEstimationOptions kernel;
   TileSelectionOptions tiles;
-  CrfFitOptions fit;                 // initial_ratio = the EXIF ratio (footnote 4) or --ratio
+  CrfFitOptions fit;                 // nominal_ratio = the EXIF ratio (footnote 4) or --ratio
   bool register_pair = true;         // false: the pair is already aligned
   bool refine_registration = true;   // kernel-aware refinement (ECC of I ⊗ K against B) after the first kernel
   cv::Mat given_kernel;              // non-empty: skip estimation (--kernel FILE)
@@ -52,9 +52,9 @@ struct PairCalibrationOptions {
   // blurs of 2–3 px, RMS radius 0.5–0.8 px, r = 4, EXIF 4 % off): a fitted r is 0.40–0.99 × the truth (φ_G 0.101);
   // held at EXIF, φ_G 0.019.
   double min_blur_radius = 1.0;
-  // Below min_blur_radius (measured on the first kernel), if the first fit's r disagrees with fit.initial_ratio
+  // Below min_blur_radius (measured on the first kernel), if the first fit's r disagrees with fit.nominal_ratio
   // (EXIF or --ratio) by more than effects.ratio_tolerance (the tolerance of nominal EXIF values), r is held at
-  // fit.initial_ratio and a warning says so. Along the ambiguity log r moves by γ·log r, so near r = 1 the images
+  // fit.nominal_ratio and a warning says so. Along the ambiguity log r moves by γ·log r, so near r = 1 the images
   // still give r from brightness and agree with EXIF (measured at r = 1: nothing held, φ 0.110 either way); at r = 2
   // and 4 they drift (φ_G 0.084 → 0.028 and 0.101 → 0.028 with the hold). false: r is fitted anyway (only warned).
   bool fix_ratio_when_blur_is_small = true;

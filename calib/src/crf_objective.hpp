@@ -1,0 +1,131 @@
+#pragma once
+// Internal to the CRF fitter (crf_fitter.cpp): the objectives (seed Sec. 4).
+//  * The seed's Eq. 22 (SeedObjective): Σ W² (ψ(r · (φ(I) ⊗ K)) − B)² over the pixels of Eq. 23/24, with the
+//    closed-form r of Eq. 25; the mixtures φ(I) ⊗ K are sparse level mixtures (level_mixture.hpp).
+//  * The binned irradiance moments (crfcal's default): per instrument bin k (B's level × B's local min/max), the
+//    sums H_k (kernel masses of I's levels) and N_k (B's levels); the residual (r H_k − N_k) · φ divided by φ's
+//    secant slope over the bin (the intensity-domain residual of Eq. 21 to first order). MomentResiduals are the
+//    rows Levenberg–Marquardt minimises, with the priors' rows (crf_priors.hpp) appended.
+//  * The continuously-updated GMM residuals (an ablation, CrfFitOptions::Experimental::variance_correction).
+#include <array>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "crf_curve.hpp"
+#include "crf_preparation.hpp"
+#include "crfcal/level_mixture.hpp"
+#include "crfcal/noise_debias.hpp"
+
+namespace crfcal::crf_fit {
+
+// ---------------------------------------------------------------------------------------------------------
+// Seed objective (Eq. 22): Σ W² (ψ(r · m_p) − B_p)² / Σ W², m_p = Σ w_p(v) g(x_v), g = f or R f.
+struct SeedObjective {
+  const Prepared* prep;
+  const LevelMixture* mixture;
+  const Curve* curve;
+  const NoiseDebias* debias;  // null: none
+  std::vector<double> b_value;
+  double ratio = 1;
+  double weight_sum = 1;
+
+  SeedObjective(const Prepared& prepared, const LevelMixture& mix, const NoiseDebias* debias_or_null, double r);
+  double energy(const std::vector<double>& x) const;
+  // Eq. 25: the least-squares r of φ(B) ≈ r · (φ(I) ⊗ K) at the current φ.
+  double ratioStep(const std::vector<double>& x) const;
+};
+
+// ---------------------------------------------------------------------------------------------------------
+// Moment sums: per fold (16×16 checkerboard tiles) and instrument bin, the kernel-mass histogram of I's levels
+// (H), the level histogram of B (N) and the pixel count.
+struct Moments {
+  int levels = 256;
+  int bins = 0;
+  Eigen::MatrixXd h[2], n[2];  // bins × levels
+  Eigen::MatrixXd q[2];        // squared aggregated masses: Σ_q [I_q = v] c_k(q)², c_k(q) = Σ_{p∈k} K(p − q)
+  Eigen::VectorXd count[2];
+};
+
+// The weighted rows of one data selection: residual_k = √ω_k (r Ĥ_k − N_k) · φ.
+// The residual is divided by the secant slope of the current φ over the bin's B levels [v0, v1] (first-order
+// intensity-domain residual, Eq. 21), which also removes the φ → 0 / r → 0 degeneracy of irradiance residuals.
+struct MomentSystem {
+  Eigen::MatrixXd h, n;  // rows already scaled by √ω
+  Eigen::MatrixXd q;     // squared masses, scaled by ω (variance of the row's noise: r² q · Var g)
+  std::vector<double> row_scale;  // √(ω/n) of each row
+  std::vector<int> v0, v1;
+  double weight = 0;     // Σ ω (normalisation of the energy)
+  // Extrapolation prior (CrfFitOptions::exponent_smoothness): rows √λ (g_{bc} − g_{ab}) for node triples (a, b, c)
+  // outside the covered levels, g_{ab} = (log φ_b − log φ_a) / (log x_b − log x_a) the local exponent.
+  std::vector<std::array<int, 3>> exponent_triples;
+  double exponent_weight = 0;
+  std::vector<char> exponent_upper;  // triple of the chain above the covered levels
+  double shoulder_weight = 0;        // upper triples: weight of the shoulder prior
+  // upper triples: the reference's change of local exponent (g_{bc} − g_{ab} of the EMoR mean g0) that φ's change
+  // is held to; empty: the one-sided prior (a rise is free, a fall costs shoulder_weight)
+  std::vector<double> shoulder_reference;
+  // Lower bound (CrfFitOptions::min_local_exponent): rows kPenaltyScale · max(0, ε − g_ab) for consecutive nodes.
+  std::vector<std::array<int, 2>> exponent_pairs;
+  double min_exponent = 0;
+  // Exposure-ratio prior (CrfFitOptions::ratio_prior_sigma): one row scale · (log r − log r_nominal) when r is fitted.
+  double ratio_prior_scale = 0;
+  double ratio_prior_log_centre = 0;
+  int levels() const { return static_cast<int>(h.cols()); }
+};
+
+// The moment data of one pair: the sums, the instrument bins and the level operator of the noise handling.
+struct MomentProblem {
+  Moments moments;
+  int level_bins = 64;
+  std::vector<int> bin_level_bin;             // B-level bin of each instrument bin
+  const Eigen::MatrixXd* level_operator = nullptr;  // R or J applied to the rows (null: g = φ)
+  Eigen::VectorXd omega;                      // per-bin weights ω_k
+  std::pair<int, int> covered_levels{0, 0};   // lowest/highest level of the data (0.1 % tails dropped)
+
+  // The system of one fold (0, 1) or of all the data (−1), without priors.
+  MomentSystem system(int fold) const;
+};
+
+// Instruments from B alone, the moment sums and the covered levels. Fills result.mixture_nonzeros, moment_bins,
+// covered_levels and timings.mixture_s.
+MomentProblem buildMomentProblem(const Prepared& prep, const NoiseOperators& noise, const CrfFitOptions& options,
+                                 int threads, CrfFitResult& result);
+
+// Energy (per unit weight) of a fixed φ on a system's data rows, r given.
+double momentEnergy(const MomentSystem& sys, const std::vector<double>& f, double r);
+
+// Monotonicity penalty residuals on the 1024 grid: √P · max(0, f_i − f_{i+1} + ε); also the scale of the local
+// exponent's lower bound.
+constexpr double kPenaltyScale = 1e3;
+
+// The residual vector Levenberg–Marquardt minimises for one curve on one system: parameters p = (model
+// parameters, log r if fitted). Rows: the data (normalised so that the squared norm is the energy per unit
+// weight), EMoR's monotonicity penalty on the 1024 grid, then the priors (crf_priors.hpp; the extrapolation prior
+// only when with_prior). False outside the model's domain.
+class MomentResiduals {
+ public:
+  MomentResiduals(const Curve& curve, const MomentSystem& sys, double r0, bool fit_ratio, bool with_prior);
+  bool operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res, Eigen::MatrixXd* jac) const;
+
+ private:
+  const Curve& curve_;
+  const MomentSystem& sys_;
+  double r0_;
+  bool fit_ratio_, with_prior_;
+};
+
+// Continuously-updated GMM (CUE): residual_k = S_k / √V_k(φ, r), S_k = (r Ĥ_k − N_k)·φ the bin sum and
+// V_k = r² Σ_v q_k(v) Var[g(I) | v] + Σ_v N_k(v) φ'(x_v)² Δ²/12 its model variance (I's noise through the
+// transition matrix T, plus the quantisation of B and I). The noise part of E[S_k²/V_k] is 1 whatever φ is, so the
+// squared noise no longer pulls φ (the errors-in-variables bias of squared sums), and the ratio is invariant to
+// the scale of φ (no φ → 0 degeneracy).
+struct CueModel {
+  const Eigen::MatrixXd* t = nullptr;  // transition matrix (null: no noise of I)
+  const Eigen::MatrixXd* r = nullptr;  // debias operator (null: g = φ)
+};
+bool cueResiduals(const MomentSystem& sys, const CueModel& cue, const std::vector<double>& f, double r,
+                  Eigen::VectorXd& res);
+
+}  // namespace crfcal::crf_fit

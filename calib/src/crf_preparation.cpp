@@ -1,0 +1,218 @@
+#include "crf_preparation.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <string>
+
+#include <opencv2/imgproc.hpp>
+
+#include "crfcal/blur_model.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/kernel.hpp"
+#include "crfcal/noise_estimation.hpp"
+
+namespace crfcal::crf_fit {
+namespace {
+
+// σ of I: per level (given), single (given), else estimated when an objective or the noise handling needs it.
+double noiseSigma(const cv::Mat& sharp, const cv::Mat& sharp_unit, int L, const CrfFitOptions& options,
+                  CrfFitResult& result) {
+  const bool seed_objective = options.experimental.objective == CrfObjective::seed_intensity;
+  const bool need_sigma = options.experimental.noise != NoiseHandling::none || !seed_objective;
+  double sigma = 0;
+  if (!options.noise_sigma_per_level.empty()) {
+    if (static_cast<int>(options.noise_sigma_per_level.size()) != L)
+      throw InvalidInput("fit options: noise_sigma_per_level has " + std::to_string(options.noise_sigma_per_level.size()) +
+                         " entries, the level grid has " + std::to_string(L));
+    sigma = std::accumulate(options.noise_sigma_per_level.begin(), options.noise_sigma_per_level.end(), 0.0) / L;
+  } else if (options.noise_sigma >= 0) {
+    sigma = options.noise_sigma;
+  } else if (need_sigma && sharp.rows >= 9 && sharp.cols >= 9) {
+    sigma = estimateNoiseSigma(sharp_unit).sigma;
+    result.noise_sigma_estimated = true;
+  }
+  result.noise_sigma = sigma;
+  return sigma;
+}
+
+// Edge-preserving denoising of I: a bilateral filter (5×5, range σ_r = 2σ, spatial σ_s = 1.5), twice.
+cv::Mat denoiseSharp(const cv::Mat& unit, double sigma) {
+  if (!(sigma > 0.5 / 255)) return unit.clone();
+  cv::Mat a, b;
+  unit.convertTo(a, CV_32F);
+  cv::bilateralFilter(a, b, 5, 2.0 * sigma, 1.5, cv::BORDER_REFLECT);
+  cv::bilateralFilter(b, a, 5, 2.0 * sigma, 1.5, cv::BORDER_REFLECT);
+  cv::Mat out;
+  a.convertTo(out, CV_64F);
+  cv::min(cv::max(out, 0.0), 1.0, out);
+  return out;
+}
+
+// Saturated or censored pixels of B or I inside the interior, dilated by the kernel's support.
+cv::Mat saturationMask(const Prepared& prep, const cv::Mat& interior, const CrfFitOptions& options) {
+  const cv::Mat& kernel = prep.kernel;
+  const bool noisy = prep.sigma * 255.0 > 1.0;  // more than one 8-bit level
+  cv::Mat bad = (prep.blurred_unit >= options.saturation_high) | (prep.blurred_unit <= options.saturation_low);
+  if (noisy) {
+    // A noisy I clips at 0 and 1 by noise alone (modelled by the censored transition matrix); only regions whose
+    // local median is saturated are saturated (a per-pixel test would select pixels by their noise).
+    cv::Mat s32, med;
+    prep.sharp_unit.convertTo(s32, CV_32F);
+    cv::medianBlur(s32, med, 5);
+    bad |= (med >= options.saturation_high) | (med <= options.saturation_low);
+  } else {
+    bad |= (prep.sharp_unit >= options.saturation_high) | (prep.sharp_unit <= options.saturation_low);
+  }
+  {
+    const cv::Size ks((kernel.cols | 1) + (kernel.cols % 2 == 0 ? 1 : 0), (kernel.rows | 1) + (kernel.rows % 2 == 0 ? 1 : 0));
+    cv::dilate(bad, bad, cv::getStructuringElement(cv::MORPH_RECT, ks));
+  }
+  bad &= interior;
+  return bad;
+}
+
+// The selection weight of every pixel: seed Eq. 23 (Γ = B − I ⊗ K > τ1, r = 1) or Eq. 24 (I's local range > τ2,
+// r ≠ 1); moments: B's local range over the support > edge_threshold.
+cv::Mat selectionWeight(const Prepared& prep, const CrfFitOptions& options) {
+  const cv::Mat& kernel = prep.kernel;
+  cv::Mat weight(prep.sharp_unit.size(), CV_64F, cv::Scalar(0));
+  if (options.experimental.objective == CrfObjective::seed_intensity) {
+    const bool unit_ratio = std::abs(options.nominal_ratio - 1.0) < 1e-9;
+    if (unit_ratio) {
+      const cv::Mat gamma = prep.blurred_unit - convolve(prep.sharp_used, kernel);  // Γ = B − I ⊗ K
+      weight.setTo(0);
+      gamma.copyTo(weight, gamma > options.experimental.tau1);  // Eq. 23
+    } else {
+      const LocalRange range = localRange(prep.sharp_used, kernel);
+      const cv::Mat spread = range.max - range.min;
+      spread.copyTo(weight, spread > options.experimental.tau2);  // Eq. 24
+    }
+  } else {
+    const LocalRange range = localRange(prep.blurred_unit, kernel);
+    const cv::Mat spread = range.max - range.min;
+    spread.copyTo(weight, spread > options.edge_threshold);
+  }
+  return weight;
+}
+
+// The usable pixels (inside, not saturated, weight > 0), subsampled deterministically to max_pixels.
+void selectPixels(Prepared& prep, const cv::Rect& inside, const cv::Mat& bad, const cv::Mat& weight,
+                  const CrfFitOptions& options, CrfPixelAccounting& acc) {
+  std::vector<cv::Point> candidates_px;
+  for (int y = inside.y; y < inside.y + inside.height; ++y)
+    for (int x = inside.x; x < inside.x + inside.width; ++x) {
+      if (bad.at<std::uint8_t>(y, x)) continue;
+      if (weight.at<double>(y, x) > 0) candidates_px.emplace_back(x, y);
+      else ++acc.low_weight;
+    }
+  if (options.max_pixels > 0 && static_cast<int>(candidates_px.size()) > options.max_pixels) {
+    const double step = double(candidates_px.size()) / options.max_pixels;
+    std::vector<cv::Point> sub;
+    sub.reserve(options.max_pixels);
+    for (int i = 0; i < options.max_pixels; ++i) sub.push_back(candidates_px[static_cast<std::size_t>(i * step)]);
+    acc.subsampled = static_cast<int>(candidates_px.size() - sub.size());
+    candidates_px = std::move(sub);
+  }
+  prep.pixels = std::move(candidates_px);
+  acc.used = static_cast<int>(prep.pixels.size());
+  acc.used_mask = cv::Mat::zeros(prep.sharp_unit.size(), CV_8U);
+  for (const auto& p : prep.pixels) acc.used_mask.at<std::uint8_t>(p) = 255;
+  if (acc.used < options.min_pixels)
+    throw InvalidInput("fit: no usable edges: only " + std::to_string(acc.used) + " usable edge pixels (need " +
+                       std::to_string(options.min_pixels) + "); the pair needs blurred edges away from saturation");
+  for (const auto& p : prep.pixels) prep.seed_weight.push_back(weight.at<double>(p));
+}
+
+// Second-order Jensen correction (NoiseHandling::jensen): g = φ − ½ σ²(v) φ''(v), so that E[g(I) | c] = φ(c) up
+// to O(σ⁴). A tridiagonal operator on the level grid (g = J f, applied to the moment rows as H J like R): local,
+// so it does not amplify the noise the way the deconvolution R does.
+// σ(v): given, else estimated per level from I (the sharp shot's noise grows with the signal: one σ for all levels
+// over-corrects the shadows and under-corrects the highlights), else the single given σ.
+Eigen::MatrixXd jensenOperator(const Prepared& prep, const CrfFitOptions& options) {
+  const int L = prep.levels;
+  std::vector<double> sigma_v = options.noise_sigma_per_level;
+  if (sigma_v.empty() && options.noise_sigma < 0 && prep.sharp_unit.rows >= 9 && prep.sharp_unit.cols >= 9) {
+    const NoiseProfile profile = estimateNoiseProfile(prep.sharp_unit);
+    sigma_v = noiseSigmaPerLevel(profile.level, profile.sigma, L);
+  }
+  if (sigma_v.empty()) sigma_v.assign(L, prep.sigma);
+  Eigen::MatrixXd jensen = Eigen::MatrixXd::Identity(L, L);
+  for (int v = 0; v < L; ++v) {
+    const double sv = sigma_v[v];
+    const double s = 0.5 * sv * sv * double(L - 1) * double(L - 1);  // ½σ²/h², h = 1/(L−1)
+    const int c = std::clamp(v, 1, L - 2);  // the ends use the nearest interior second difference
+    jensen(v, c - 1) -= s;  // row v: g_v = f_v − s (f_{c+1} − 2 f_c + f_{c−1})
+    jensen(v, c) += 2 * s;
+    jensen(v, c + 1) -= s;
+  }
+  return jensen;
+}
+
+}  // namespace
+
+Prepared preparePair(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel_in,
+                     const CrfFitOptions& options, CrfFitResult& result) {
+  if (sharp.empty() || blurred.empty()) throw InvalidInput("fit: empty image");
+  if (sharp.size() != blurred.size()) throw InvalidInput("fit: sharp and blurred images differ in size");
+  if (sharp.channels() != 1 || blurred.channels() != 1) throw InvalidInput("fit: images must be single-channel");
+  Prepared prep;
+  prep.kernel = normalizeKernel(kernel_in);
+  prep.sharp_unit = toUnitGray(sharp);
+  prep.blurred_unit = toUnitGray(blurred);
+  const int L = std::max(naturalLevels(sharp), naturalLevels(blurred));
+  prep.levels = L;
+  result.levels = L;
+  prep.sigma = noiseSigma(sharp, prep.sharp_unit, L, options, result);
+
+  prep.sharp_used = prep.sharp_unit;
+  if (options.experimental.noise == NoiseHandling::denoise) prep.sharp_used = denoiseSharp(prep.sharp_unit, prep.sigma);
+  prep.sharp = toLevels(prep.sharp_used, L);
+  prep.blurred = toLevels(prep.blurred_unit, L);
+
+  // Pixel accounting: border, saturation (dilated by the support), edges.
+  CrfPixelAccounting& acc = result.pixels;
+  acc.total = static_cast<int>(sharp.total());
+  const cv::Rect inside = interiorRect(sharp.size(), prep.kernel);
+  cv::Mat interior = cv::Mat::zeros(sharp.size(), CV_8U);
+  if (inside.area() > 0) interior(inside).setTo(255);
+  acc.border = acc.total - cv::countNonZero(interior);
+  const cv::Mat bad = saturationMask(prep, interior, options);
+  acc.saturated = cv::countNonZero(bad);
+  if (acc.saturated > 0 && acc.saturated == cv::countNonZero(interior))
+    throw InvalidInput("fit: every pixel is saturated or censored (in B or I, dilated by the kernel support)");
+  selectPixels(prep, inside, bad, selectionWeight(prep, options), options, acc);
+  return prep;
+}
+
+NoiseOperators makeNoiseOperators(const Prepared& prep, const CrfFitOptions& options) {
+  const int L = prep.levels;
+  const double sigma = prep.sigma;
+  const bool seed_objective = options.experimental.objective == CrfObjective::seed_intensity;
+  const NoiseHandling noise = options.experimental.noise;
+  NoiseOperators ops;
+  const bool use_debias = noise == NoiseHandling::debias && (sigma > 0 || !options.noise_sigma_per_level.empty());
+  if (use_debias) {
+    NoiseDebiasOptions dopt;
+    dopt.levels = L;
+    dopt.sigma = std::min(sigma, 0.5);
+    dopt.sigma_per_level = options.noise_sigma_per_level;
+    dopt.regularization = options.experimental.debias_regularization;
+    ops.debias = NoiseDebias(dopt);
+  }
+  ops.debias_active = use_debias && !ops.debias.identity();
+  if (noise == NoiseHandling::jensen && !seed_objective && (sigma > 0 || !options.noise_sigma_per_level.empty()))
+    ops.jensen = jensenOperator(prep, options);
+  // the noise transition matrix (for the CUE variances) also without debiasing
+  if (!ops.debias_active && !seed_objective && noise == NoiseHandling::none && sigma * (L - 1) >= 0.05) {
+    NoiseDebiasOptions dopt;
+    dopt.levels = L;
+    dopt.sigma = std::min(sigma, 0.5);
+    dopt.sigma_per_level = options.noise_sigma_per_level;
+    ops.noise_only = NoiseDebias(dopt);
+    ops.noise_only_active = true;
+  }
+  return ops;
+}
+
+}  // namespace crfcal::crf_fit
