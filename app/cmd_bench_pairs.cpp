@@ -11,7 +11,6 @@
 #include <sstream>
 
 #include <nlohmann/json.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
@@ -132,9 +131,8 @@ int runPairs(const PairsArgs& args) {
           const HandheldPair pair = makeHandheldPair(photo, truth, kernel, ho);
           const fs::path dir = out.file(name);
           fs::create_directories(dir);
-          const std::vector<int> jpeg{cv::IMWRITE_JPEG_QUALITY, args.quality};
-          cv::imwrite((dir / "sharp.jpg").string(), pair.sharp, jpeg);
-          cv::imwrite((dir / "blurred.jpg").string(), pair.blurred, jpeg);
+          io::writeJpeg(dir / "sharp.jpg", pair.sharp, args.quality);
+          io::writeJpeg(dir / "blurred.jpg", pair.blurred, args.quality);
           ExifExposure es, eb;
           es.make = eb.make = "crfcal";
           es.model = eb.model = "semi-real handheld";
