@@ -144,7 +144,7 @@ int runPairs(const PairsArgs& args) {
           io::writeExif(dir / "sharp.jpg", es);
           io::writeExif(dir / "blurred.jpg", eb);
           nlohmann::json truth_json = {{"inverse_crf", sampleInverse(truth)}, {"crf_spec", crf}, {"kernel_spec", kernel_spec},
-                                       {"exposure_ratio", ratio}, {"exif_ratio", *eb.exposure_time * 100 / 8.0},
+                                       {"exposure_ratio", ratio}, {"nominal_ratio", *eb.exposure_time * 100 / 8.0},
                                        {"homography", std::vector<double>(pair.homography.begin<double>(), pair.homography.end<double>())},
                                        {"image", image_path}};
           io::writeTextFile(dir / "truth.json", truth_json.dump(1) + "\n");

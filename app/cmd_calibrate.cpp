@@ -12,6 +12,7 @@
 #include "command.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/calibration_figures.hpp"
 #include "crfcal/io/calibration_report.hpp"
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/kernel_io.hpp"
@@ -154,17 +155,17 @@ int runCalibrate(const CalibrateArgs& args) {
                 " (" + pair.blurred_reason + ")");
 
   // Exposure ratio (footnote 4).
-  double ratio = args.ratio;
+  double nominal_ratio = args.ratio;
   if (pair.exif_ratio) {
     std::fprintf(stderr, "  exif: sharp %s; blurred %s\n  exif: %s\n", pair.sharp.exposure.summary().c_str(),
                  pair.blurred.exposure.summary().c_str(), pair.exif_ratio->summary().c_str());
   }
-  if (ratio <= 0) {
+  if (nominal_ratio <= 0) {
     if (!pair.exif_ratio)
       throw Error("no exposure ratio: " + pair.exif_problem, pair.exif_problem.find("sharp") != std::string::npos
                                                                   ? pair.sharp.path.string()
                                                                   : pair.blurred.path.string());
-    ratio = pair.exif_ratio->ratio();
+    nominal_ratio = pair.exif_ratio->ratio();
   }
 
   // The RAW of one shot: the camera's real response, measured before the (longer) pair calibration so that a bad
@@ -184,7 +185,7 @@ int runCalibrate(const CalibrateArgs& args) {
   options.rgb = args.channels == "rgb";
   options.rounds = args.rounds;
   options.register_pair = !args.no_register;
-  options.fit.initial_ratio = ratio;
+  options.fit.initial_ratio = nominal_ratio;
   options.fit.fit_ratio = !args.fix_ratio;
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
   options.effects.enabled = !args.no_effects;
@@ -229,10 +230,10 @@ int runCalibrate(const CalibrateArgs& args) {
   std::optional<io::RawTruthReport> truth_report;
   if (truth) {
     truth_report.emplace(io::RawTruthReport{truth->file, truth->shot.blurred, truth->shot_file, truth->shot.reason,
-                                            truth->result});
+                                            truth->result, std::nullopt, false});
     compareWithTruth(result, *truth_report);
   }
-  const io::CalibrationReportContext context{pair, ratio, args.ratio > 0 ? "--ratio" : "exif", args.fix_ratio,
+  const io::CalibrationReportContext context{pair, nominal_ratio, args.ratio > 0 ? "--ratio" : "exif", args.fix_ratio,
                                              options.fit.ratio_prior_sigma, truth_report ? &*truth_report : nullptr};
   io::CalibrationReport report = io::calibrationReport(result, context);
   report.timings.insert(timings.begin(), timings.end());
@@ -253,30 +254,10 @@ int runCalibrate(const CalibrateArgs& args) {
     }
     io::writeTextFile(out.file("inverse_crf.csv"), csv.str());
   }
-  io::writeKernelPng(out.file("kernel.png"), K);
   io::writeKernelText(out.file("kernel.txt"), K);
-  {
-    std::vector<io::PlotSeries> series;
-    std::vector<double> x(kCurveSamples);
-    for (int i = 0; i < kCurveSamples; ++i) x[i] = static_cast<double>(i) / (kCurveSamples - 1);
-    io::PlotSeries identity{x, x, cv::Scalar(150, 150, 150), "identity", 1, false, true};
-    series.push_back(identity);
-    for (const auto& c : report.channels()) {
-      const cv::Scalar colour = c == "R" ? cv::Scalar(40, 40, 220) : c == "G" ? cv::Scalar(40, 160, 40) : cv::Scalar(220, 80, 40);
-      series.push_back({x, report.inverse_crf.at(c), colour, "phi " + c});
-      if (truth && truth->result.inverse().count(c))
-        series.push_back({x, truth->result.inverse().at(c), colour, "RAW truth " + c, 1, false, true});
-    }
-    io::PlotOptions plot;
-    plot.title = "inverse response phi (" + pair.sharp.exposure.camera() + ")";
-    plot.x_label = "intensity x";
-    plot.y_label = "irradiance phi(x)";
-    plot.x_min = plot.y_min = 0;
-    plot.x_max = plot.y_max = 1;
-    io::writePlot(out.file("curve.png"), series, plot);
-  }
-  io::writeSignedMap(out.file("gamma_map.png"), result.gamma_map);
-  io::writeImage(out.file("weights.png"), result.weights.empty() ? cv::Mat::zeros(1, 1, CV_8U) : result.weights);
+  std::map<std::string, std::vector<double>> truth_curves;
+  if (truth) truth_curves = truth->result.inverse();
+  io::writeCalibrationFigures(out.file(""), {result, pair, truth ? &truth_curves : nullptr});
   report.timings["write"] = std::chrono::duration<double>(Clock::now() - t).count();
   report.timings["total"] = std::chrono::duration<double>(Clock::now() - start).count();
   io::writeReport(out.file("report.json"), report);
@@ -284,14 +265,12 @@ int runCalibrate(const CalibrateArgs& args) {
   progress.done();
 
   std::printf("%s\n", result.summary().c_str());
-  if (report.ratio_exif) {
-    std::printf("exposure ratio: EXIF %.4g, fitted %.4g", *report.ratio_exif, *report.ratio_fitted);
-    const CrfFitResult& g = result.fits.count("G") ? result.fits.at("G") : result.fits.begin()->second;
-    if (g.ratio_images_only > 0)
-      std::printf(" (images alone %.4g; prior sigma %.2g on log r)", g.ratio_images_only, options.fit.ratio_prior_sigma);
-    std::printf("\n");
-  }
-  else std::printf("exposure ratio: given %.4g, fitted %.4g\n", ratio, *report.ratio_fitted);
+  std::printf("exposure ratio: %s %.4g, fitted %.4g", args.ratio > 0 ? "given" : "EXIF", nominal_ratio,
+              *report.fitted_ratio);
+  const CrfFitResult& g = result.fits.count("G") ? result.fits.at("G") : result.fits.begin()->second;
+  if (g.ratio_images_only > 0)
+    std::printf(" (images alone %.4g; prior sigma %.2g on log r)", g.ratio_images_only, options.fit.ratio_prior_sigma);
+  std::printf("\n");
   if (truth) {
     std::printf("RAW truth (%s, the %s shot):\n%s", truth->file.path.string().c_str(),
                 truth->shot.blurred ? "blurred" : "sharp", truth->result.summary().c_str());

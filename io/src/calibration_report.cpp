@@ -51,8 +51,8 @@ json inputJson(const LoadedPair& pair) {
   return input;
 }
 
-// The exposure ratio r = Δt_B/Δt_I (footnote 4): where the nominal value came from, how it was used, what the fit
-// made of it per channel.
+// The exposure ratio r = Δt_B/Δt_I (footnote 4) beyond report.hpp's "exposure_ratio": the EXIF factors, how r was
+// used, what the fit made of it per channel.
 void addExposureRatio(const PairCalibrationResult& result, const CalibrationReportContext& context, json& extra) {
   const LoadedPair& pair = context.pair;
   if (pair.exif_ratio)
@@ -62,7 +62,6 @@ void addExposureRatio(const PairCalibrationResult& result, const CalibrationRepo
                                        {"aperture_known", pair.exif_ratio->aperture_known},
                                        {"sharp", pair.sharp.exposure.summary()},
                                        {"blurred", pair.blurred.exposure.summary()}};
-  extra["exposure_ratio_used_as_seed"] = context.nominal_ratio;
   extra["exposure_ratio_mode"] = context.ratio_fixed_by_option        ? "fixed (--fix-ratio)"
                                  : result.ratio_fixed_by_small_blur ? "fixed (blur too small to determine r)"
                                                                     : "fitted";
@@ -200,8 +199,9 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
     report.models[name] = fit.model;
     report.pixels_used[name] = fit.pixels.used;
   }
-  if (context.pair.exif_ratio) report.ratio_exif = context.pair.exif_ratio->ratio();
-  report.ratio_fitted = result.fits.at("G").ratio;
+  report.nominal_ratio = context.nominal_ratio;
+  report.nominal_ratio_source = context.nominal_ratio_source;
+  report.fitted_ratio = result.fits.at("G").ratio;
   report.covered_range = result.covered_range;
   report.warnings = result.warnings;
   report.effects = effectsJson(result.effects);
