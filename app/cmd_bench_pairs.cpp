@@ -18,7 +18,6 @@
 #include <sstream>
 
 #include <nlohmann/json.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
@@ -243,9 +242,8 @@ int runPairs(const PairsArgs& args) {
           const HandheldPair pair = makeHandheldPair(photo, truth, kernel, ho);
           const fs::path dir = out.file(name);
           fs::create_directories(dir);
-          const std::vector<int> jpeg{cv::IMWRITE_JPEG_QUALITY, args.quality};
-          cv::imwrite((dir / "sharp.jpg").string(), pair.sharp, jpeg);
-          cv::imwrite((dir / "blurred.jpg").string(), pair.blurred, jpeg);
+          io::writeJpeg(dir / "sharp.jpg", pair.sharp, args.quality);
+          io::writeJpeg(dir / "blurred.jpg", pair.blurred, args.quality);
           ExifExposure es, eb;
           es.make = eb.make = "crfcal";
           es.model = eb.model = "semi-real handheld";
@@ -258,7 +256,7 @@ int runPairs(const PairsArgs& args) {
           io::writeExif(dir / "sharp.jpg", es);
           io::writeExif(dir / "blurred.jpg", eb);
           nlohmann::json truth_json = {{"inverse_crf", sampleInverse(truth)}, {"crf_spec", crf}, {"kernel_spec", kernel_spec},
-                                       {"exposure_ratio", ratio}, {"exif_ratio", *eb.exposure_time * 100 / 8.0},
+                                       {"exposure_ratio", ratio}, {"nominal_ratio", *eb.exposure_time * 100 / 8.0},
                                        {"homography", std::vector<double>(pair.homography.begin<double>(), pair.homography.end<double>())},
                                        {"image", image_path}};
           if (exposure)

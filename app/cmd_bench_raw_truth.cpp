@@ -12,12 +12,10 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <memory>
 #include <optional>
 
 #include <nlohmann/json.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "bench_command.hpp"
 #include "crfcal/curve_comparison.hpp"
@@ -52,19 +50,6 @@ double median(std::vector<double> v) {
   return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
 }
 
-// The covered range a table's header states ("data cover x in [lo, hi]"), or nullopt.
-std::optional<IntensityRange> tableCoverage(const fs::path& table) {
-  std::ifstream in(table);
-  std::string line;
-  while (std::getline(in, line) && !line.empty() && line[0] == '#') {
-    const auto at = line.find("cover x in [");
-    if (at == std::string::npos) continue;
-    double lo = 0, hi = 0;
-    if (std::sscanf(line.c_str() + at, "cover x in [%lf, %lf]", &lo, &hi) == 2) return IntensityRange{lo, hi};
-  }
-  return std::nullopt;
-}
-
 nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root, Progress& progress) {
   const fs::path curves = args.curves.empty() ? io::samplesDirectory() / "camera_curves" : fs::path(args.curves);
   nlohmann::json out = nlohmann::json::array();
@@ -90,7 +75,7 @@ nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root
     std::optional<IntensityRange> table_covered;
     if (fs::exists(table_path)) {
       table = io::readCurveTable(table_path);
-      table_covered = tableCoverage(table_path);
+      table_covered = io::readCurveTableCoverage(table_path);
     }
     for (const auto& shot : io::listMiddleburyShots(root / camera)) {
       progress.update(double(done++) / std::max(1, total), camera + " " + shot.name);

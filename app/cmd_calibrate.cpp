@@ -12,6 +12,8 @@
 #include "command.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/calibration_figures.hpp"
+#include "crfcal/io/calibration_report.hpp"
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/pair_input.hpp"
@@ -120,65 +122,17 @@ RawTruthRun computeTruth(const CalibrateArgs& args, const io::LoadedPair& pair, 
   return run;
 }
 
-nlohmann::json comparisonJson(const CurveComparison& comparison) {
-  nlohmann::json out = nlohmann::json::object();
-  for (const auto& c : comparison.channels)
-    out[c.channel] = {{"rmse", c.rmse},
-                      {"max_error", c.max_error},
-                      {"covered", {c.covered.first, c.covered.second}},
-                      {"covered_source", c.covered_source},
-                      {"rmse_covered", c.rmse_covered},
-                      {"max_error_covered", c.max_error_covered},
-                      {"scale_covered", c.scale_covered},
-                      {"rmse_covered_aligned", c.rmse_covered_aligned}};
-  out["worst_rmse"] = comparison.worst_rmse;
-  out["worst_rmse_covered"] = comparison.worst_rmse_covered;
-  out["worst_rmse_covered_aligned"] = comparison.worst_rmse_covered_aligned;
-  return out;
-}
-
-nlohmann::json truthJson(const RawTruthRun& run, const std::optional<CurveComparison>& comparison) {
-  const RawTruthResult& r = run.result;
-  nlohmann::json out = {{"file", run.file.path.string()},
-                        {"format", run.file.format},
-                        {"camera_raw", run.file.linear},
-                        {"shot", run.shot.blurred ? "blurred" : "sharp"},
-                        {"shot_file", run.shot_file},
-                        {"shot_reason", run.shot.reason},
-                        {"inverse_crf", r.inverse()},
-                        {"covered_range", nlohmann::json::object()},
-                        {"channels", nlohmann::json::object()},
-                        {"overlap_pixels", r.overlap_pixels},
-                        {"flat_pixels", r.flat_pixels},
-                        {"warnings", r.warnings}};
-  if (run.file.linear) out["raw_levels"] = {{"black", run.file.black_level}, {"white", run.file.white_level}};
-  for (const auto& [name, range] : r.covered()) out["covered_range"][name] = {range.first, range.second};
-  for (const auto& c : r.channels) {
-    nlohmann::json cv = nlohmann::json::array();
-    for (const auto& [k, e] : c.fit.cv_rmse) cv.push_back({k, e});
-    out["channels"][c.channel] = {{"model", describe(c.fit.model)},
-                                  {"terms", c.fit.terms},
-                                  {"cv_rmse", cv},
-                                  {"colour_mix", c.mix},
-                                  {"bin_rmse", c.fit.rmse},
-                                  {"pixel_rmse", c.pixel_rmse},
-                                  {"explained_variance", c.explained},
-                                  {"effective_exponent", std::isfinite(c.effective_gamma)
-                                                             ? nlohmann::json(c.effective_gamma)
-                                                             : nlohmann::json(nullptr)},
-                                  {"pixels", c.pixels},
-                                  {"censored_pixels", c.censored_pixels},
-                                  {"bins", c.bins}};
+// The pair's φ against the RAW truth, per channel, over [0,1] and over the range both are supported by data (over
+// [0,1] only when the two cover disjoint ranges).
+void compareWithTruth(const PairCalibrationResult& result, io::RawTruthReport& truth) {
+  std::map<std::string, std::vector<double>> curves;
+  for (const auto& [name, fit] : result.fits) curves[name] = fit.inverse_crf;
+  try {
+    truth.comparison = compareChannels(curves, truth.result.inverse(), result.covered_range, truth.result.covered());
+  } catch (const InvalidInput&) {
+    truth.comparison = compareChannels(curves, truth.result.inverse());
+    truth.compared_on_full_range_only = true;
   }
-  const cv::Mat& H = r.registration.homography;
-  out["registration"] = {{"method", r.registration.method},
-                         {"rotation_deg", r.rotation_degrees},
-                         {"linear_scale", r.linear_scale},
-                         {"ecc_correlation", r.registration.ecc_correlation},
-                         {"working_size", {r.working_size.width, r.working_size.height}},
-                         {"matrix", std::vector<double>(H.begin<double>(), H.end<double>())}};
-  if (comparison) out["comparison"] = comparisonJson(*comparison);
-  return out;
 }
 
 int runCalibrate(const CalibrateArgs& args) {
@@ -186,8 +140,7 @@ int runCalibrate(const CalibrateArgs& args) {
   const auto start = Clock::now();
   if (args.threads > 0) cv::setNumThreads(args.threads);
   Progress progress(args.quiet);
-  io::CalibrationReport report;
-  report.command = "calibrate";
+  std::map<std::string, double> timings;  // the command's stages (the calibration's own are in its result)
   // Decided before the computation: a refused or unwritable output directory fails at once.
   io::OutputDirectory out(args.output, {"calibrate", {args.first, args.second, args.kernel_file, args.raw_truth}, args.force});
 
@@ -199,24 +152,23 @@ int runCalibrate(const CalibrateArgs& args) {
                                    : args.blurred == "second" ? io::BlurredChoice::second
                                                               : io::BlurredChoice::automatic;
   const io::LoadedPair pair = io::loadPair(args.first, args.second, choice, raw);
-  report.timings["decode"] = std::chrono::duration<double>(Clock::now() - t).count();
+  timings["decode"] = std::chrono::duration<double>(Clock::now() - t).count();
   progress.done(pair.sharp.format + " pair " + std::to_string(pair.blurred.image.cols) + "x" +
                 std::to_string(pair.blurred.image.rows) + "; blurred = " + pair.blurred.path.filename().string() +
                 " (" + pair.blurred_reason + ")");
 
   // Exposure ratio (footnote 4).
-  double ratio = args.ratio;
+  double nominal_ratio = args.ratio;
   if (pair.exif_ratio) {
-    report.ratio_exif = pair.exif_ratio->ratio();
     std::fprintf(stderr, "  exif: sharp %s; blurred %s\n  exif: %s\n", pair.sharp.exposure.summary().c_str(),
                  pair.blurred.exposure.summary().c_str(), pair.exif_ratio->summary().c_str());
   }
-  if (ratio <= 0) {
+  if (nominal_ratio <= 0) {
     if (!pair.exif_ratio)
       throw Error("no exposure ratio: " + pair.exif_problem, pair.exif_problem.find("sharp") != std::string::npos
                                                                   ? pair.sharp.path.string()
                                                                   : pair.blurred.path.string());
-    ratio = pair.exif_ratio->ratio();
+    nominal_ratio = pair.exif_ratio->ratio();
   }
 
   // The RAW of one shot: the camera's real response, measured before the (longer) pair calibration so that a bad
@@ -226,7 +178,7 @@ int runCalibrate(const CalibrateArgs& args) {
     progress.stage("raw truth");
     t = Clock::now();
     truth = computeTruth(args, pair, raw);
-    report.timings["raw_truth"] = std::chrono::duration<double>(Clock::now() - t).count();
+    timings["raw_truth"] = std::chrono::duration<double>(Clock::now() - t).count();
     progress.done(truth->file.format + " " + truth->file.path.filename().string() + " = the " +
                   (truth->shot.blurred ? "blurred" : "sharp") + " shot (" + truth->shot.reason + ")");
   }
@@ -236,7 +188,7 @@ int runCalibrate(const CalibrateArgs& args) {
   options.rgb = args.channels == "rgb";
   options.rounds = args.rounds;
   options.register_pair = !args.no_register;
-  options.fit.nominal_ratio = ratio;
+  options.fit.nominal_ratio = nominal_ratio;
   options.fit.fit_ratio = !args.fix_ratio;
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
   options.effects.enabled = !args.no_effects;
@@ -278,131 +230,17 @@ int runCalibrate(const CalibrateArgs& args) {
 
   progress.stage("write");
   t = Clock::now();
-  for (const auto& [stage, seconds] : result.timings) report.timings[stage] = seconds;
-  for (const auto& [name, fit] : result.fits) {
-    report.inverse_crf[name] = fit.inverse_crf;
-    report.models[name] = fit.model;
-    report.pixels_used[name] = fit.pixels.used;
-  }
-  report.ratio_fitted = result.fits.at("G").ratio;
-  report.covered_range = result.covered_range;
-  report.warnings = result.warnings;
-  report.effects = nlohmann::json::array();
-  for (const auto& e : result.effects.entries)
-    report.effects.push_back({{"name", e.name}, {"detected", e.detected}, {"tested", e.tested},
-                              {"statistic", e.statistic}, {"threshold", e.threshold}, {"gain", e.gain},
-                              {"gain_threshold", e.gain_threshold}, {"parameters", e.parameters}, {"detail", e.detail}});
-  for (const auto& name : result.effects.detected()) report.warnings.push_back("effect detected: " + name);
-  if (!result.base_fits.empty()) {
-    report.extra["phi_base_model"] = nlohmann::json::object();
-    for (const auto& [name, fit] : result.base_fits) report.extra["phi_base_model"][name] = fit.inverse_crf;
-  }
-  if (pair.swapped) report.warnings.push_back("the first image is the blurred one (" + pair.blurred_reason + "); swapped");
-  if (pair.sharp.linear)
-    report.warnings.push_back("RAW pair: the data are linear (phi should be the identity; the fit checks it)");
-  {
-    // One warning naming every chroma-subsampled shot (only when R and B are fitted: G is carried by luma).
-    std::vector<std::string> subsampled;
-    for (const auto* shot : {&pair.sharp, &pair.blurred})
-      if (shot->chroma_subsampled)
-        subsampled.push_back(shot->path.string() + " (" + shot->chroma_subsampling + ")");
-    if (!subsampled.empty() && result.fits.size() > 1) {
-      std::string files = subsampled.front();
-      if (subsampled.size() > 1) files += " and " + subsampled.back();
-      report.warnings.push_back(files + ": JPEG chroma subsampled: R and B are rebuilt from chroma averaged across "
-                                "edges after the tone curve, so their curves are less reliable than G's (see "
-                                "docs/RESULTS.md#calibrate)");
-    }
-  }
-  nlohmann::json& extra = report.extra;
-  extra["input"] = {{"sharp", pair.sharp.path.string()},
-                    {"blurred", pair.blurred.path.string()},
-                    {"format", pair.sharp.format},
-                    {"chroma_subsampling", {{"sharp", pair.sharp.chroma_subsampling},
-                                            {"blurred", pair.blurred.chroma_subsampling}}},
-                    {"linear", pair.sharp.linear},
-                    {"blurred_reason", pair.blurred_reason},
-                    {"camera", pair.sharp.exposure.camera()},
-                    {"size", {pair.blurred.image.cols, pair.blurred.image.rows}}};
-  if (pair.sharp.linear)
-    extra["input"]["raw_levels"] = {{"black", pair.sharp.black_level}, {"white", pair.sharp.white_level}};
-  if (pair.exif_ratio)
-    extra["exposure_ratio_factors"] = {{"iso", pair.exif_ratio->iso},
-                                       {"time", pair.exif_ratio->time},
-                                       {"aperture", pair.exif_ratio->aperture},
-                                       {"aperture_known", pair.exif_ratio->aperture_known},
-                                       {"sharp", pair.sharp.exposure.summary()},
-                                       {"blurred", pair.blurred.exposure.summary()}};
-  extra["exposure_ratio_used_as_seed"] = ratio;
-  extra["exposure_ratio_mode"] = args.fix_ratio                     ? "fixed (--fix-ratio)"
-                                : result.ratio_fixed_by_small_blur ? "fixed (blur too small to determine r)"
-                                                                   : "fitted";
-  extra["exposure_ratio_per_channel"] = nlohmann::json::object();
-  extra["ambiguity_rise"] = nlohmann::json::object();  // CrfFitResult::ambiguity_rise per channel
-  for (const auto& [name, fit] : result.fits) {
-    extra["exposure_ratio_per_channel"][name] = fit.ratio;
-    extra["ambiguity_rise"][name] = fit.ambiguity_rise;
-  }
-  // the EXIF prior on log r (CrfFitOptions::ratio_prior_sigma) and what the images alone say, per channel
-  if (options.fit.fit_ratio && options.fit.ratio_prior_sigma > 0) {
-    extra["exposure_ratio_prior"] = {{"centre", ratio},
-                                     {"log_sigma", options.fit.ratio_prior_sigma},
-                                     {"images_only", nlohmann::json::object()}};
-    for (const auto& [name, fit] : result.fits)
-      if (fit.ratio_images_only > 0) extra["exposure_ratio_prior"]["images_only"][name] = fit.ratio_images_only;
-  }
-  const cv::Mat& K = result.kernel.kernel;
-  extra["kernel"] = {{"size", {K.cols, K.rows}},
-                     {"file", "kernel.png"},
-                     {"text", "kernel.txt"},
-                     {"estimated", result.kernel_estimated}};
-  if (result.kernel_estimated) {
-    extra["kernel"]["centroid"] = {result.kernel.centroid.x, result.kernel.centroid.y};
-    extra["kernel"]["blur_rms_radius_px"] = result.blur_radius;
-    extra["kernel"]["equations"] = result.kernel.equations;
-    extra["kernel"]["border_mass"] = result.kernel.border_mass;
-    extra["kernel"]["relative_residual"] = result.kernel.relative_residual;
-    extra["kernel"]["tiles"] = result.tiles.size();
-    if (result.tile_kernels.size() > 1)
-      extra["kernel"]["tile_disagreement"] = {{"mean_relative", result.disagreement.mean_relative},
-                                              {"max_relative", result.disagreement.max_relative},
-                                              {"centroid_spread_px", result.disagreement.centroid_spread}};
-  }
-  extra["registration"] = {{"method", result.registration.method},
-                           {"homography", std::vector<double>(result.registration.homography.begin<double>(),
-                                                              result.registration.homography.end<double>())},
-                           {"ecc_correlation", result.registration.ecc_correlation},
-                           {"overlap", result.registration.overlap_fraction},
-                           {"inliers", result.registration.inliers},
-                           {"shift_px", {result.registration.shift().x, result.registration.shift().y}},
-                           {"rotation_deg", result.registration.rotationDegrees()}};
-  extra["rounds"] = nlohmann::json::array();
-  for (const auto& r : result.rounds)
-    extra["rounds"].push_back({{"round", r.round},
-                               {"kernel_change", r.kernel_change},
-                               {"phi_change_rmse", r.phi_change},
-                               {"ratio", r.ratio},
-                               {"kernel_residual", r.kernel_residual}});
-  extra["fit_window"] = {result.fit_window.x, result.fit_window.y, result.fit_window.width, result.fit_window.height};
-  extra["fit"] = nlohmann::json::object();
-  for (const auto& [name, fit] : result.fits)
-    extra["fit"][name] = {{"model", describe(fit.model)}, {"chosen", fit.chosen}, {"reason", fit.choice_reason},
-                          {"energy", fit.energy}, {"iterations", fit.iterations}, {"noise_sigma", fit.noise_sigma}};
-  std::optional<CurveComparison> truth_comparison;
+  std::optional<io::RawTruthReport> truth_report;
   if (truth) {
-    // The pair's φ against the RAW truth, per channel, over [0,1] and over the range both are supported by data.
-    try {
-      truth_comparison = compareChannels(report.inverse_crf, truth->result.inverse(), report.covered_range,
-                                         truth->result.covered());
-    } catch (const InvalidInput&) {
-      // The two are supported by data on disjoint intensity ranges: only the [0,1] comparison is meaningful.
-      truth_comparison = compareChannels(report.inverse_crf, truth->result.inverse());
-      report.warnings.push_back("raw truth: the pair and the RAW truth cover disjoint intensity ranges; compared over "
-                                "[0,1] only");
-    }
-    extra["raw_truth"] = truthJson(*truth, truth_comparison);
-    for (const auto& w : truth->result.warnings) report.warnings.push_back("raw truth: " + w);
+    truth_report.emplace(io::RawTruthReport{truth->file, truth->shot.blurred, truth->shot_file, truth->shot.reason,
+                                            truth->result, std::nullopt, false});
+    compareWithTruth(result, *truth_report);
   }
+  const io::CalibrationReportContext context{pair, nominal_ratio, args.ratio > 0 ? "--ratio" : "exif", args.fix_ratio,
+                                             options.fit.ratio_prior_sigma, truth_report ? &*truth_report : nullptr};
+  io::CalibrationReport report = io::calibrationReport(result, context);
+  report.timings.insert(timings.begin(), timings.end());
+  const cv::Mat& K = result.kernel.kernel;
 
   // inverse_crf.csv
   {
@@ -418,30 +256,10 @@ int runCalibrate(const CalibrateArgs& args) {
     }
     io::writeTextFile(out.file("inverse_crf.csv"), csv.str());
   }
-  io::writeKernelPng(out.file("kernel.png"), K);
   io::writeKernelText(out.file("kernel.txt"), K);
-  {
-    std::vector<io::PlotSeries> series;
-    std::vector<double> x(kCurveSamples);
-    for (int i = 0; i < kCurveSamples; ++i) x[i] = static_cast<double>(i) / (kCurveSamples - 1);
-    io::PlotSeries identity{x, x, cv::Scalar(150, 150, 150), "identity", 1, false, true};
-    series.push_back(identity);
-    for (const auto& c : report.channels()) {
-      const cv::Scalar colour = c == "R" ? cv::Scalar(40, 40, 220) : c == "G" ? cv::Scalar(40, 160, 40) : cv::Scalar(220, 80, 40);
-      series.push_back({x, report.inverse_crf.at(c), colour, "phi " + c});
-      if (truth && truth->result.inverse().count(c))
-        series.push_back({x, truth->result.inverse().at(c), colour, "RAW truth " + c, 1, false, true});
-    }
-    io::PlotOptions plot;
-    plot.title = "inverse response phi (" + pair.sharp.exposure.camera() + ")";
-    plot.x_label = "intensity x";
-    plot.y_label = "irradiance phi(x)";
-    plot.x_min = plot.y_min = 0;
-    plot.x_max = plot.y_max = 1;
-    io::writePlot(out.file("curve.png"), series, plot);
-  }
-  io::writeSignedMap(out.file("gamma_map.png"), result.gamma_map);
-  io::writeImage(out.file("weights.png"), result.weights.empty() ? cv::Mat::zeros(1, 1, CV_8U) : result.weights);
+  std::map<std::string, std::vector<double>> truth_curves;
+  if (truth) truth_curves = truth->result.inverse();
+  io::writeCalibrationFigures(out.file(""), {result, pair, truth ? &truth_curves : nullptr});
   report.timings["write"] = std::chrono::duration<double>(Clock::now() - t).count();
   report.timings["total"] = std::chrono::duration<double>(Clock::now() - start).count();
   io::writeReport(out.file("report.json"), report);
@@ -449,18 +267,16 @@ int runCalibrate(const CalibrateArgs& args) {
   progress.done();
 
   std::printf("%s\n", result.summary().c_str());
-  if (report.ratio_exif) {
-    std::printf("exposure ratio: EXIF %.4g, fitted %.4g", *report.ratio_exif, *report.ratio_fitted);
-    const CrfFitResult& g = result.fits.count("G") ? result.fits.at("G") : result.fits.begin()->second;
-    if (g.ratio_images_only > 0)
-      std::printf(" (images alone %.4g; prior sigma %.2g on log r)", g.ratio_images_only, options.fit.ratio_prior_sigma);
-    std::printf("\n");
-  }
-  else std::printf("exposure ratio: given %.4g, fitted %.4g\n", ratio, *report.ratio_fitted);
+  std::printf("exposure ratio: %s %.4g, fitted %.4g", args.ratio > 0 ? "given" : "EXIF", nominal_ratio,
+              *report.fitted_ratio);
+  const CrfFitResult& g = result.fits.count("G") ? result.fits.at("G") : result.fits.begin()->second;
+  if (g.ratio_images_only > 0)
+    std::printf(" (images alone %.4g; prior sigma %.2g on log r)", g.ratio_images_only, options.fit.ratio_prior_sigma);
+  std::printf("\n");
   if (truth) {
     std::printf("RAW truth (%s, the %s shot):\n%s", truth->file.path.string().c_str(),
                 truth->shot.blurred ? "blurred" : "sharp", truth->result.summary().c_str());
-    std::printf("pair phi vs RAW truth:\n%s", truth_comparison->summary().c_str());
+    std::printf("pair phi vs RAW truth:\n%s", truth_report->comparison->summary().c_str());
   }
   for (const auto& w : report.warnings) std::printf("warning: %s\n", w.c_str());
   std::printf("wrote %s/{report.json, inverse_crf.csv, kernel.png, kernel.txt, curve.png, gamma_map.png, weights.png}\n",

@@ -36,7 +36,19 @@ std::string ratioText(const std::optional<double>& r) {
   return buffer;
 }
 
+std::string sourceText(const io::CalibrationReport& report) {
+  return report.nominal_ratio_source.empty() ? "-" : report.nominal_ratio_source;
+}
+
 nlohmann::json ratioJson(const std::optional<double>& r) { return r ? nlohmann::json(*r) : nlohmann::json(nullptr); }
+
+// One report's exposure ratios for compare.json (the names of report.json's "exposure_ratio").
+nlohmann::json ratiosJson(const io::CalibrationReport& report) {
+  return {{"nominal", ratioJson(report.nominal_ratio)},
+          {"nominal_source", report.nominal_ratio_source.empty() ? nlohmann::json(nullptr)
+                                                                 : nlohmann::json(report.nominal_ratio_source)},
+          {"fitted", ratioJson(report.fitted_ratio)}};
+}
 
 cv::Scalar channelColor(const std::string& channel, int index) {
   if (channel == "R") return {40, 39, 214};
@@ -69,10 +81,11 @@ int runCompare(const CompareArgs& args) {
   if (!args.quiet) {
     std::printf("A: %s\nB: %s\n\n%s\n", args.a.c_str(), args.b.c_str(), comparison.summary().c_str());
     std::printf("exposure ratio  %-12s %-12s\n", "A", "B");
-    std::printf("  exif          %-12s %-12s\n", ratioText(a.ratio_exif).c_str(), ratioText(b.ratio_exif).c_str());
-    std::printf("  fitted        %-12s %-12s", ratioText(a.ratio_fitted).c_str(), ratioText(b.ratio_fitted).c_str());
-    if (a.ratio_fitted && b.ratio_fitted && *b.ratio_fitted != 0)
-      std::printf("  (A/B - 1 = %+.3e)", *a.ratio_fitted / *b.ratio_fitted - 1);
+    std::printf("  nominal       %-12s %-12s  (source: %s / %s)\n", ratioText(a.nominal_ratio).c_str(),
+                ratioText(b.nominal_ratio).c_str(), sourceText(a).c_str(), sourceText(b).c_str());
+    std::printf("  fitted        %-12s %-12s", ratioText(a.fitted_ratio).c_str(), ratioText(b.fitted_ratio).c_str());
+    if (a.fitted_ratio && b.fitted_ratio && *b.fitted_ratio != 0)
+      std::printf("  (A/B - 1 = %+.3e)", *a.fitted_ratio / *b.fitted_ratio - 1);
     std::printf("\n");
   }
 
@@ -134,8 +147,7 @@ int runCompare(const CompareArgs& args) {
     json["worst_rmse"] = comparison.worst_rmse;
     json["worst_rmse_covered"] = comparison.worst_rmse_covered;
     json["worst_rmse_covered_aligned"] = comparison.worst_rmse_covered_aligned;
-    json["exposure_ratio"] = {{"a", {{"exif", ratioJson(a.ratio_exif)}, {"fitted", ratioJson(a.ratio_fitted)}}},
-                              {"b", {{"exif", ratioJson(b.ratio_exif)}, {"fitted", ratioJson(b.ratio_fitted)}}}};
+    json["exposure_ratio"] = {{"a", ratiosJson(a)}, {"b", ratiosJson(b)}};
     if (args.tolerance) {
       json["tolerance"] = *args.tolerance;
       json["tolerance_range"] = args.tolerance_range;

@@ -11,7 +11,6 @@
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "command.hpp"
@@ -23,6 +22,7 @@
 #include "crfcal/exposure_fit.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/datasets.hpp"
+#include "crfcal/io/image_io.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/plot.hpp"
 #include "crfcal/level_mixture.hpp"
@@ -134,8 +134,7 @@ fs::path requireData(const StudyArgs& args, const std::string& sub) {
 }
 
 cv::Mat greenUnit(const fs::path& path, double scale = 1.0) {
-  cv::Mat image = cv::imread(path.string(), cv::IMREAD_COLOR);
-  if (image.empty()) throw Error("cannot read image", path.string());
+  const cv::Mat image = io::readColorImage(path);
   cv::Mat g;
   cv::extractChannel(image, g, 1);
   if (scale != 1.0) cv::resize(g, g, cv::Size(), scale, scale, cv::INTER_AREA);
@@ -438,8 +437,7 @@ int runRatio(const StudyArgs& args) {
   int done = 0;
   const int total = static_cast<int>(eps.size() * curves.size()) * args.images;
   for (int im = 1; im <= args.images; ++im) {
-    const cv::Mat image = toUnitGray(cv::imread((io::samplesDirectory() / "levin09" / ("im" + std::to_string(im) + ".png")).string(),
-                                               cv::IMREAD_GRAYSCALE));
+    const cv::Mat image = io::readGrayUnit(io::samplesDirectory() / "levin09" / ("im" + std::to_string(im) + ".png"));
     const cv::Mat kernel = io::kernelFromSpec("levin:" + std::to_string(im));
     for (const auto& [cname, cmodel] : curves) {
       SimulationOptions so;
@@ -664,8 +662,7 @@ int runNoise(const StudyArgs& args) {
   for (const auto& c : cases) {
     const ResponseModel model = parseResponseSpec(c.curve);
     const ResponseCurve curve(model);
-    const cv::Mat image = toUnitGray(cv::imread(
-        (io::samplesDirectory() / "levin09" / ("im" + std::to_string(c.image) + ".png")).string(), cv::IMREAD_GRAYSCALE));
+    const cv::Mat image = io::readGrayUnit(io::samplesDirectory() / "levin09" / ("im" + std::to_string(c.image) + ".png"));
     const cv::Mat kernel = io::kernelFromSpec("levin:" + std::to_string(c.kernel));
     RealisticSimulationOptions so;
     so.sharp_noise = {bench_noise.a * c.noise_scale, bench_noise.b * c.noise_scale * c.noise_scale};

@@ -71,6 +71,8 @@ TEST(CalibrateCli, BundledPairWithKnownKernel) {
   EXPECT_EQ(report["inverse_crf"]["G"].size(), 1024u);
   EXPECT_FALSE(report["inverse_crf"].contains("R"));
   EXPECT_NEAR(report["exposure_ratio"]["exif"].get<double>(), 1.0375, 0.01);
+  EXPECT_EQ(report["exposure_ratio"]["nominal"], report["exposure_ratio"]["exif"]);
+  EXPECT_EQ(report["exposure_ratio"]["nominal_source"], "exif");
   EXPECT_TRUE(report["effects"].is_array());
   // OpenCV wrote the pair with 4:2:0 chroma: recorded; no warning about R and B when only G is fitted.
   EXPECT_EQ(report["input"]["chroma_subsampling"]["sharp"].get<std::string>(), "4:2:0");
@@ -132,6 +134,11 @@ TEST(CalibrateCli, FixRatioKeepsTheGivenRatio) {
   std::ifstream in(dir / "out" / "report.json");
   const auto report = nlohmann::json::parse(in);
   EXPECT_DOUBLE_EQ(report["exposure_ratio_per_channel"]["G"].get<double>(), 1.2);
+  // r given on the command line: the nominal ratio says so, and "exif" (EXIF's r) is not written.
+  EXPECT_DOUBLE_EQ(report["exposure_ratio"]["nominal"].get<double>(), 1.2);
+  EXPECT_EQ(report["exposure_ratio"]["nominal_source"], "--ratio");
+  EXPECT_FALSE(report["exposure_ratio"].contains("exif"));
+  EXPECT_NE(r.output.find("exposure ratio: given 1.2"), std::string::npos) << r.output;
 }
 
 // The irradiance-domain kernel rounds' ablation flags reach the pipeline (the weights and λ change the round's kernel),

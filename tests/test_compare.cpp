@@ -134,8 +134,9 @@ io::CalibrationReport reportOf(const ResponseModel& model, double ratio) {
   report.command = "calibrate";
   report.inverse_crf["G"] = sampleInverse(model);
   report.models["G"] = model;
-  report.ratio_fitted = ratio;
-  report.ratio_exif = 1.0;
+  report.fitted_ratio = ratio;
+  report.nominal_ratio = 1.0;
+  report.nominal_ratio_source = "exif";
   report.covered_range["G"] = {0.05, 0.9};
   return report;
 }
@@ -165,7 +166,9 @@ TEST(Compare, CommandTableJsonPlotAndTolerance) {
   EXPECT_NEAR(json["channels"][0]["covered_range"][0].get<double>(), 0.05, 1e-12);
   EXPECT_NEAR(json["exposure_ratio"]["a"]["fitted"].get<double>(), 1.02, 1e-12);
   EXPECT_NEAR(json["exposure_ratio"]["b"]["fitted"].get<double>(), 1.0, 1e-12);
-  EXPECT_TRUE(json["exposure_ratio"]["b"]["exif"].is_null());
+  EXPECT_TRUE(json["exposure_ratio"]["b"]["nominal"].is_null());
+  EXPECT_EQ(json["exposure_ratio"]["a"]["nominal"].get<double>(), 1.0);
+  EXPECT_EQ(json["exposure_ratio"]["a"]["nominal_source"], "exif");
 
   result = test::run(binary + args + " --tolerance " + std::to_string(rmse * 0.5));
   EXPECT_EQ(result.exit_code, 3) << result.output;
@@ -180,6 +183,25 @@ TEST(Compare, CommandTableJsonPlotAndTolerance) {
   EXPECT_NE(result.output.find("scale-aligned"), std::string::npos) << result.output;
   EXPECT_TRUE(json["channels"][0].contains("rmse_covered_aligned"));
   EXPECT_GT(json["channels"][0]["scale_covered"].get<double>(), 0.0);
+}
+
+// report.json's exposure ratio: "nominal" with its source; reports written before it had only "exif".
+TEST(Compare, ReportReadsTheNominalRatioFromNewAndOldKeys) {
+  nlohmann::json old_report = {{"inverse_crf", {0.0, 1.0}}, {"exposure_ratio", {{"exif", 2.5}, {"fitted", 2.4}}}};
+  io::CalibrationReport old_read = io::CalibrationReport::fromJson(old_report);
+  ASSERT_TRUE(old_read.nominal_ratio.has_value());
+  EXPECT_EQ(*old_read.nominal_ratio, 2.5);
+  EXPECT_EQ(old_read.nominal_ratio_source, "exif");
+  EXPECT_EQ(*old_read.fitted_ratio, 2.4);
+
+  old_read.nominal_ratio_source = "--ratio";
+  const nlohmann::json written = old_read.toJson();
+  EXPECT_EQ(written["exposure_ratio"]["nominal"].get<double>(), 2.5);
+  EXPECT_EQ(written["exposure_ratio"]["nominal_source"], "--ratio");
+  EXPECT_FALSE(written["exposure_ratio"].contains("exif"));  // not EXIF's value
+  const io::CalibrationReport new_read = io::CalibrationReport::fromJson(written);
+  EXPECT_EQ(*new_read.nominal_ratio, 2.5);
+  EXPECT_EQ(new_read.nominal_ratio_source, "--ratio");
 }
 
 TEST(Compare, CommandErrorsAreOneLine) {

@@ -15,7 +15,10 @@
 namespace crfcal::io {
 namespace fs = std::filesystem;
 
-cv::Mat readImage(const fs::path& path) {
+namespace {
+
+// The file's bytes decoded with OpenCV's `flags`; every failure names the file.
+cv::Mat decodeFile(const fs::path& path, int flags) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw Error("file not found", path.string());
   if (fs::is_directory(path, ec)) throw Error("is a directory, not an image", path.string());
@@ -25,11 +28,31 @@ cv::Mat readImage(const fs::path& path) {
   if (bytes.empty()) throw Error("file is empty", path.string());
   cv::Mat image;
   try {
-    image = cv::imdecode(bytes, cv::IMREAD_UNCHANGED | cv::IMREAD_ANYDEPTH | cv::IMREAD_ANYCOLOR);
+    image = cv::imdecode(bytes, flags);
   } catch (const cv::Exception& e) {
     throw Error("cannot decode image: " + e.msg, path.string());
   }
   if (image.empty()) throw Error("not a readable image (corrupt or unsupported format)", path.string());
+  return image;
+}
+
+// The image written by OpenCV's encoder for the path's extension, atomically.
+void encodeFile(const fs::path& path, const cv::Mat& image, const std::vector<int>& parameters) {
+  writeAtomically(path, [&](const fs::path& temporary) {
+    bool ok = false;
+    try {
+      ok = cv::imwrite(temporary.string(), image, parameters);
+    } catch (const cv::Exception& e) {
+      throw Error("cannot encode image: " + e.msg, path.string());
+    }
+    if (!ok) throw Error("cannot write image", path.string());
+  });
+}
+
+}  // namespace
+
+cv::Mat readImage(const fs::path& path) {
+  const cv::Mat image = decodeFile(path, cv::IMREAD_UNCHANGED | cv::IMREAD_ANYDEPTH | cv::IMREAD_ANYCOLOR);
   if (image.depth() != CV_8U && image.depth() != CV_16U && image.depth() != CV_32F)
     throw Error("unsupported pixel depth (8 or 16 bit integer or 32-bit float expected)", path.string());
   return image;
@@ -43,16 +66,12 @@ cv::Mat readGrayUnit(const fs::path& path) {
   }
 }
 
-void writeImage(const fs::path& path, const cv::Mat& image) {
-  writeAtomically(path, [&](const fs::path& temporary) {
-    bool ok = false;
-    try {
-      ok = cv::imwrite(temporary.string(), image);
-    } catch (const cv::Exception& e) {
-      throw Error("cannot encode image: " + e.msg, path.string());
-    }
-    if (!ok) throw Error("cannot write image", path.string());
-  });
+cv::Mat readColorImage(const fs::path& path) { return decodeFile(path, cv::IMREAD_COLOR); }
+
+void writeImage(const fs::path& path, const cv::Mat& image) { encodeFile(path, image, {}); }
+
+void writeJpeg(const fs::path& path, const cv::Mat& image, int quality) {
+  encodeFile(path, image, {cv::IMWRITE_JPEG_QUALITY, quality});
 }
 
 void writeUnitImage(const fs::path& path, const cv::Mat& image, int bits) {

@@ -84,7 +84,8 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
   }
 
   cv::Mat canvas(options.size, CV_8UC3, cv::Scalar(255, 255, 255));
-  const int left = 80, right = 20, top = options.title.empty() ? 30 : 58, bottom = 60;
+  const int ranges = static_cast<int>(options.x_ranges.size());
+  const int left = 80, right = 20, top = options.title.empty() ? 30 : 58, bottom = 60 + (ranges ? 8 + 12 * ranges : 0);
   const cv::Rect area(left, top, canvas.cols - left - right, canvas.rows - top - bottom);
   auto px = [&](double x) { return area.x + (x - x0) / (x1 - x0) * area.width; };
   auto py = [&](double y) { return area.y + area.height - (y - y0) / (y1 - y0) * area.height; };
@@ -125,6 +126,13 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
       cv::polylines(plot, polyline, false, s.color, s.thickness, cv::LINE_AA);
     }
   }
+  for (size_t i = 0; i < options.x_ranges.size(); ++i) {
+    const PlotRange& r = options.x_ranges[i];
+    const int y = area.y + area.height + 34 + 12 * static_cast<int>(i);  // under the tick labels
+    const int a = static_cast<int>(std::lround(px(std::max(r.lo, x0)))), b = static_cast<int>(std::lround(px(std::min(r.hi, x1))));
+    cv::line(canvas, {a, y}, {b, y}, r.color, 5);
+    for (int end : {a, b}) cv::line(canvas, {end, y - 6}, {end, y + 6}, r.color, 2);
+  }
   int legend_y = area.y + 20;
   for (const auto& s : series) {
     if (s.label.empty()) continue;
@@ -134,8 +142,16 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
       dashedPolyline(canvas, {{area.x + 12.0, legend_y - 5.0}, {area.x + 42.0, legend_y - 5.0}}, s.color,
                      std::max(2, s.thickness), 8, 5);
     else
-      cv::line(canvas, {area.x + 12, legend_y - 5}, {area.x + 40, legend_y - 5}, s.color, 3, cv::LINE_AA);
+      cv::line(canvas, {area.x + 12, legend_y - 5}, {area.x + 40, legend_y - 5}, s.color, s.thickness >= 2 ? 3 : 1,
+               cv::LINE_AA);
     cv::putText(canvas, s.label, {area.x + 48, legend_y}, font, 0.45, black, 1, cv::LINE_AA);
+    legend_y += 20;
+  }
+  for (const auto& r : options.x_ranges) {
+    if (r.label.empty()) continue;
+    cv::line(canvas, {area.x + 12, legend_y - 5}, {area.x + 40, legend_y - 5}, r.color, 5);
+    for (int end : {area.x + 12, area.x + 40}) cv::line(canvas, {end, legend_y - 11}, {end, legend_y + 1}, r.color, 2);
+    cv::putText(canvas, r.label, {area.x + 48, legend_y}, font, 0.45, black, 1, cv::LINE_AA);
     legend_y += 20;
   }
   return canvas;

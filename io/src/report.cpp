@@ -50,8 +50,13 @@ nlohmann::json CalibrationReport::toJson() const {
     json["covered_range"] = nlohmann::json::object();
     for (const auto& [channel, range] : covered_range) json["covered_range"][channel] = {range.first, range.second};
   }
-  json["exposure_ratio"] = {{"exif", ratio_exif ? nlohmann::json(*ratio_exif) : nlohmann::json(nullptr)},
-                            {"fitted", ratio_fitted ? nlohmann::json(*ratio_fitted) : nlohmann::json(nullptr)}};
+  nlohmann::json& ratio = json["exposure_ratio"];
+  ratio = {{"fitted", fitted_ratio ? nlohmann::json(*fitted_ratio) : nlohmann::json(nullptr)}};
+  if (nominal_ratio) {
+    ratio["nominal"] = *nominal_ratio;
+    if (!nominal_ratio_source.empty()) ratio["nominal_source"] = nominal_ratio_source;
+    if (nominal_ratio_source == "exif") ratio["exif"] = *nominal_ratio;  // the key older readers know
+  }
   json["timings"] = timings;
   json["pixels_used"] = pixels_used;
   json["effects"] = effects;
@@ -93,10 +98,16 @@ CalibrationReport CalibrationReport::fromJson(const nlohmann::json& json, const 
         report.covered_range[channel] = {range.at(0).get<double>(), range.at(1).get<double>()};
     if (json.contains("exposure_ratio")) {
       const auto& ratio = json["exposure_ratio"];
-      if (ratio.is_number()) report.ratio_fitted = ratio.get<double>();
+      if (ratio.is_number()) report.fitted_ratio = ratio.get<double>();  // simulate's truth.json
       if (ratio.is_object()) {
-        if (ratio.contains("exif") && ratio["exif"].is_number()) report.ratio_exif = ratio["exif"].get<double>();
-        if (ratio.contains("fitted") && ratio["fitted"].is_number()) report.ratio_fitted = ratio["fitted"].get<double>();
+        if (ratio.contains("nominal") && ratio["nominal"].is_number()) {
+          report.nominal_ratio = ratio["nominal"].get<double>();
+          report.nominal_ratio_source = ratio.value("nominal_source", "");
+        } else if (ratio.contains("exif") && ratio["exif"].is_number()) {  // reports before "nominal"
+          report.nominal_ratio = ratio["exif"].get<double>();
+          report.nominal_ratio_source = "exif";
+        }
+        if (ratio.contains("fitted") && ratio["fitted"].is_number()) report.fitted_ratio = ratio["fitted"].get<double>();
       }
     }
     if (json.contains("timings") && json["timings"].is_object()) report.timings = json["timings"].get<std::map<std::string, double>>();

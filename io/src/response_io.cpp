@@ -1,6 +1,7 @@
 #include "crfcal/io/response_io.hpp"
 
 #include <algorithm>
+#include <cstdio>
 #include <fstream>
 #include <sstream>
 
@@ -104,6 +105,18 @@ ResponseModel parseResponseSpec(const std::string& spec, const std::string& chan
     return table;
   }
   return crfcal::parseResponseSpec(spec);
+}
+
+std::optional<std::pair<double, double>> readCurveTableCoverage(const fs::path& path) {
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line) && !line.empty() && line[0] == '#') {
+    const auto at = line.find("cover x in [");
+    if (at == std::string::npos) continue;
+    double lo = 0, hi = 0;
+    if (std::sscanf(line.c_str() + at, "cover x in [%lf, %lf]", &lo, &hi) == 2) return std::make_pair(lo, hi);
+  }
+  return std::nullopt;
 }
 
 nlohmann::json modelToJson(const ResponseModel& model) {

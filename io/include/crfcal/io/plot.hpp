@@ -20,6 +20,13 @@ struct PlotSeries {
   bool dashed = false;
 };
 
+// An interval of x (e.g. the intensities a channel's data cover): a bar along the bottom of the plot, in the legend.
+struct PlotRange {
+  double lo = 0, hi = 1;
+  cv::Scalar color{0, 0, 0};  // BGR
+  std::string label;
+};
+
 struct PlotOptions {
   std::string title;
   std::string x_label = "x";
@@ -29,6 +36,7 @@ struct PlotOptions {
   double y_min = std::numeric_limits<double>::quiet_NaN();
   double y_max = std::numeric_limits<double>::quiet_NaN();
   cv::Size size{720, 540};
+  std::vector<PlotRange> x_ranges;  // drawn as bars stacked from the bottom of the plot area
 };
 
 // A distinct colour for series i (a small qualitative palette).

@@ -6,7 +6,9 @@
 //   "crfcal_version": "0.1.0", "command": "calibrate" | "chart" | ...,
 //   "inverse_crf": {"R": [1024 samples of φ at x = i/1023], "G": [...], "B": [...]}   (only "G" for grey input),
 //   "models": {"G": {"kind": "ggcm", "parameters": [...], "spec": "ggcm:..."}, ...},
-//   "exposure_ratio": {"exif": r or null, "fitted": r or null},
+//   "exposure_ratio": {"nominal": r, "nominal_source": "exif" | "--ratio", "exif": r (only when nominal_source is
+//                      "exif"), "fitted": r or null}   (r = Δt_B/Δt_I, footnote 4; "nominal" absent when unknown;
+//                      reports before 0.2 wrote {"exif": r or null, "fitted": r}: read as nominal from EXIF),
 //   "kernel": {"size": [w, h], "file": "kernel.png"} (optional),
 //   "pixels_used": {"G": n, ...}, "timings": {"stage": seconds, ...},
 //   "effects": [ {"name", "detected", "statistic", "gain", ...} ], "warnings": ["..."],
@@ -29,8 +31,9 @@ struct CalibrationReport {
   std::map<std::string, std::vector<double>> inverse_crf;   // channel → 1024 samples
   std::map<std::string, ResponseModel> models;              // channel → model (optional per channel)
   std::map<std::string, std::pair<double, double>> covered_range;
-  std::optional<double> ratio_exif;
-  std::optional<double> ratio_fitted;
+  std::optional<double> nominal_ratio;   // the exposure ratio given to the fit: from EXIF or --ratio
+  std::string nominal_ratio_source;      // "exif" or "--ratio" (empty: unknown)
+  std::optional<double> fitted_ratio;
   std::map<std::string, double> timings;
   std::map<std::string, long long> pixels_used;
   nlohmann::json effects = nlohmann::json::array();

@@ -1,7 +1,9 @@
 #pragma once
 // Response curves on disk and in JSON.
 #include <filesystem>
+#include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json_fwd.hpp>
@@ -18,6 +20,10 @@ ResponseModel parseResponseSpec(const std::string& spec, const std::string& chan
 // Reads an inverse curve table (as described above) resampled to `samples` points.
 std::vector<double> readCurveTable(const std::filesystem::path& path, const std::string& channel = "G",
                                    int samples = kCurveSamples);
+
+// The intensity range a curve table's header says its data cover ("# ... data cover x in [lo, hi] ...", written by
+// `crfcal curves`), or nullopt when no header line says so.
+std::optional<std::pair<double, double>> readCurveTableCoverage(const std::filesystem::path& path);
 
 // {"kind": "ggcm", "parameters": [...], "spec": "ggcm:..."} (tables: kind and sample count only).
 nlohmann::json modelToJson(const ResponseModel& model);
