@@ -191,5 +191,92 @@ TEST(Deconvolution, RejectsBadOptionsAndKernels) {
   EXPECT_THROW(deconvolve(image, boxKernel(3), {ResponseCurve(), ResponseCurve()}), InvalidInput);
 }
 
+// ---- crfcal deblur ----------------------------------------------------------------------------------------------
+
+std::string quote(const std::filesystem::path& path) { return "'" + path.string() + "'"; }
+
+int lineCount(const std::string& text) {
+  int lines = 0;
+  for (char c : text) lines += c == '\n';
+  return lines + (!text.empty() && text.back() != '\n');
+}
+
+// A small gamma-2.2 blurred grey image as a 16-bit PNG.
+std::filesystem::path writeBlurred(const test::TempDir& dir) {
+  const cv::Mat sharp = sharpImage()(cv::Rect(80, 80, 96, 80)).clone();
+  const cv::Mat blurred = quantize(irradianceBlur(sharp, gammaCurve(2.2), test::levinKernel(5)), 16);
+  cv::Mat sixteen;
+  blurred.convertTo(sixteen, CV_16U, 65535.0);
+  const auto path = dir / "blurred.png";
+  cv::imwrite(path.string(), sixteen);
+  return path;
+}
+
+void expectSixteenBitOutputs(const std::filesystem::path& out, cv::Size size) {
+  for (const char* name : {"deblurred.png", "deblurred_other_domain.png"}) {
+    const cv::Mat image = cv::imread((out / name).string(), cv::IMREAD_UNCHANGED);
+    ASSERT_FALSE(image.empty()) << name;
+    EXPECT_EQ(image.depth(), CV_16U) << name;
+    EXPECT_EQ(image.size(), size) << name;
+  }
+  const cv::Mat composite = cv::imread((out / "side_by_side.png").string(), cv::IMREAD_UNCHANGED);
+  ASSERT_FALSE(composite.empty());
+  EXPECT_GE(composite.cols, 3 * size.width);
+}
+
+TEST(DeblurCli, WritesSixteenBitResultsInBothDomains) {
+  test::TempDir dir;
+  const auto blurred = writeBlurred(dir);
+  const auto kernel = test::samples() / "levin09" / "kernel05.txt";
+  const auto result = test::run(quote(test::crfcalBinary()) + " deblur " + quote(blurred) + " --kernel " +
+                                quote(kernel) + " --crf gamma:2.2 -o " + quote(dir / "out"));
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  expectSixteenBitOutputs(dir / "out", {96, 80});
+  // deblurred.png is the irradiance domain (default): closer to the sharp image than the intensity domain
+  const cv::Mat sharp = sharpImage()(cv::Rect(80, 80, 96, 80));
+  const auto unit = [&](const char* name) {
+    cv::Mat image = cv::imread((dir / "out" / name).string(), cv::IMREAD_UNCHANGED), converted;
+    image.convertTo(converted, CV_64F, 1.0 / 65535);
+    return converted;
+  };
+  EXPECT_GT(psnr(unit("deblurred.png"), sharp), psnr(unit("deblurred_other_domain.png"), sharp) + 1.0);
+}
+
+TEST(DeblurCli, FromReportTakesCurveAndKernelText) {
+  test::TempDir dir;
+  const auto blurred = writeBlurred(dir);
+  std::filesystem::create_directories(dir / "calibration");
+  std::filesystem::copy_file(test::samples() / "levin09" / "kernel05.txt", dir / "calibration" / "kernel.txt");
+  std::ofstream report(dir / "calibration" / "report.json");
+  report << "{\"command\": \"calibrate\", \"inverse_crf\": {\"G\": [";
+  for (int i = 0; i < 1024; ++i) report << (i ? "," : "") << std::pow(i / 1023.0, 2.2);
+  report << "]}, \"kernel\": {\"size\": [13, 13], \"file\": \"kernel.png\", \"text\": \"kernel.txt\"}}\n";
+  report.close();
+  const auto result = test::run(quote(test::crfcalBinary()) + " deblur " + quote(blurred) + " --from " +
+                                quote(dir / "calibration" / "report.json") + " --domain intensity -o " +
+                                quote(dir / "out"));
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  expectSixteenBitOutputs(dir / "out", {96, 80});
+  EXPECT_NE(result.output.find("intensity domain"), std::string::npos) << result.output;
+}
+
+TEST(DeblurCli, BadKernelExitsOneWithOneLine) {
+  test::TempDir dir;
+  const auto blurred = writeBlurred(dir);
+  const std::string command = quote(test::crfcalBinary()) + " deblur " + quote(blurred) + " --crf gamma:2.2 -o " +
+                              quote(dir / "out") + " --kernel ";
+  const auto missing = test::run(command + quote(dir / "no_such_kernel.txt"));
+  EXPECT_EQ(missing.exit_code, 1) << missing.output;
+  EXPECT_EQ(lineCount(missing.output), 1) << missing.output;
+  EXPECT_NE(missing.output.find("no_such_kernel.txt"), std::string::npos) << missing.output;
+
+  std::ofstream(dir / "negative.txt") << "0.5 -2 0.5\n";
+  const auto negative = test::run(command + quote(dir / "negative.txt"));
+  EXPECT_EQ(negative.exit_code, 1) << negative.output;
+  EXPECT_EQ(lineCount(negative.output), 1) << negative.output;
+  EXPECT_NE(negative.output.find("negative.txt"), std::string::npos) << negative.output;
+  EXPECT_FALSE(std::filesystem::exists(dir / "out"));
+}
+
 }  // namespace
 }  // namespace crfcal
