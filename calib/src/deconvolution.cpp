@@ -1,0 +1,314 @@
+#include "crfcal/deconvolution.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+#include <opencv2/core/utility.hpp>
+
+#include "crfcal/error.hpp"
+#include "crfcal/kernel.hpp"
+
+namespace crfcal {
+namespace {
+
+// ---- spectra -------------------------------------------------------------------------------------------------
+
+cv::Mat spectrum(const cv::Mat& real) {
+  cv::Mat complex;
+  cv::dft(real, complex, cv::DFT_COMPLEX_OUTPUT);
+  return complex;
+}
+
+cv::Mat realInverse(const cv::Mat& complex) {
+  cv::Mat real;
+  cv::dft(complex, real, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
+  return real;
+}
+
+// a · b (conjugate_b: a · conj(b)), element-wise on 2-channel spectra.
+cv::Mat multiply(const cv::Mat& a, const cv::Mat& b, bool conjugate_b = false) {
+  cv::Mat product;
+  cv::mulSpectrums(a, b, product, 0, conjugate_b);
+  return product;
+}
+
+cv::Mat squaredMagnitude(const cv::Mat& complex) {
+  cv::Mat parts[2];
+  cv::split(complex, parts);
+  return parts[0].mul(parts[0]) + parts[1].mul(parts[1]);
+}
+
+cv::Mat divideByReal(const cv::Mat& complex, const cv::Mat& real) {
+  cv::Mat parts[2];
+  cv::split(complex, parts);
+  parts[0] /= real;
+  parts[1] /= real;
+  cv::Mat quotient;
+  cv::merge(parts, 2, quotient);
+  return quotient;
+}
+
+// The spectrum of the circular operator u ↦ Σ_d P(d) u(p − d) that equals crfcal::convolve in the interior:
+// convolve(u)(p) = Σ_q K(q) u(p − q + c) with c = (cols/2, rows/2), i.e. P(d) = K(c + d), d taken modulo the size.
+cv::Mat kernelSpectrum(const cv::Mat& kernel, cv::Size size) {
+  cv::Mat psf = cv::Mat::zeros(size, CV_64F);
+  const int cx = kernel.cols / 2, cy = kernel.rows / 2;
+  for (int y = 0; y < kernel.rows; ++y)
+    for (int x = 0; x < kernel.cols; ++x) {
+      const int py = ((y - cy) % size.height + size.height) % size.height;
+      const int px = ((x - cx) % size.width + size.width) % size.width;
+      psf.at<double>(py, px) += kernel.at<double>(y, x);
+    }
+  return spectrum(psf);
+}
+
+// Forward differences with wrap-around (the circular gradient whose adjoint FTVd's FFT solve assumes):
+// (Dx u)(p) = u(p + eₓ) − u(p); as an operator P(0) = −1, P(−eₓ) = 1.
+cv::Mat differenceSpectrum(cv::Size size, bool along_x) {
+  cv::Mat psf = cv::Mat::zeros(size, CV_64F);
+  psf.at<double>(0, 0) = -1;
+  if (along_x) psf.at<double>(0, size.width - 1) = 1;
+  else psf.at<double>(size.height - 1, 0) = 1;
+  return spectrum(psf);
+}
+
+cv::Mat forwardDifference(const cv::Mat& u, bool along_x) {
+  cv::Mat shifted(u.size(), u.type());
+  if (along_x) {
+    u.colRange(1, u.cols).copyTo(shifted.colRange(0, u.cols - 1));
+    u.col(0).copyTo(shifted.col(u.cols - 1));
+  } else {
+    u.rowRange(1, u.rows).copyTo(shifted.rowRange(0, u.rows - 1));
+    u.row(0).copyTo(shifted.row(u.rows - 1));
+  }
+  return shifted - u;
+}
+
+// ---- padding -------------------------------------------------------------------------------------------------
+
+struct Padding {
+  int top = 0, left = 0, bottom = 0, right = 0;
+  cv::Size padded;
+  cv::Rect interior() const { return {left, top, padded.width - left - right, padded.height - top - bottom}; }
+};
+
+// At least the kernel's extent on every side (so that wrap-around only couples padded pixels), rounded up to a
+// fast FFT size; the extra goes to the bottom/right.
+Padding choosePadding(cv::Size image, const cv::Mat& kernel) {
+  const int margin = std::max(kernel.rows, kernel.cols);
+  Padding padding;
+  padding.top = padding.left = margin;
+  padding.padded = {cv::getOptimalDFTSize(image.width + 2 * margin), cv::getOptimalDFTSize(image.height + 2 * margin)};
+  padding.right = padding.padded.width - image.width - margin;
+  padding.bottom = padding.padded.height - image.height - margin;
+  return padding;
+}
+
+cv::Mat reflectPad(const cv::Mat& image, const Padding& padding) {
+  cv::Mat padded;
+  // BORDER_REFLECT_101 cannot pad beyond the image's own size; tile reflections for small images.
+  cv::Mat current = image;
+  int top = padding.top, bottom = padding.bottom, left = padding.left, right = padding.right;
+  while (top > 0 || bottom > 0 || left > 0 || right > 0) {
+    const int t = std::min(top, current.rows - 1), b = std::min(bottom, current.rows - 1);
+    const int l = std::min(left, current.cols - 1), r = std::min(right, current.cols - 1);
+    cv::copyMakeBorder(current, padded, t, b, l, r, cv::BORDER_REFLECT_101);
+    current = padded;
+    top -= t, bottom -= b, left -= l, right -= r;
+    if (current.rows == 1 || current.cols == 1) {  // a single row/column cannot reflect: replicate the rest
+      cv::copyMakeBorder(current, padded, std::max(top, 0), std::max(bottom, 0), std::max(left, 0),
+                         std::max(right, 0), cv::BORDER_REPLICATE);
+      return padded;
+    }
+  }
+  return current.clone();
+}
+
+// ---- solvers -------------------------------------------------------------------------------------------------
+
+cv::Mat wienerSolve(const cv::Mat& f, const cv::Mat& kernel_spectrum, double nsr) {
+  const cv::Mat denominator = squaredMagnitude(kernel_spectrum) + nsr;
+  return realInverse(divideByReal(multiply(spectrum(f), kernel_spectrum, true), denominator));
+}
+
+// FTVd (Wang et al. 2008, Alg. 1 with continuation) with the masked data term minimised by MM (see header).
+cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const cv::Mat& kernel_spectrum,
+                            const DeconvolutionOptions& options, int* iterations) {
+  const cv::Size size = f.size();
+  const cv::Mat dx_spectrum = differenceSpectrum(size, true), dy_spectrum = differenceSpectrum(size, false);
+  const cv::Mat gradient_energy = squaredMagnitude(dx_spectrum) + squaredMagnitude(dy_spectrum);
+  const cv::Mat kernel_energy = squaredMagnitude(kernel_spectrum);
+  const bool masked = cv::countNonZero(mask) < mask.rows * mask.cols;
+  cv::Mat inverse_mask;
+  mask.convertTo(inverse_mask, CV_64F, -1.0 / 255, 1.0);  // 1 − M
+
+  cv::Mat u = f.clone();
+  cv::Mat data_spectrum = multiply(spectrum(f), kernel_spectrum, true);  // conj(K̂) · F(ḟ)
+  cv::Mat u_spectrum = spectrum(u);
+  int steps = 0;
+  for (double beta = options.beta_start; beta <= options.beta_max * (1 + 1e-12); beta *= options.beta_factor) {
+    const double ratio = options.lambda / beta;
+    const cv::Mat denominator = gradient_energy + ratio * kernel_energy;
+    for (int inner = 0; inner < options.inner_iterations; ++inner) {
+      // w-step: isotropic shrinkage of ∇u by 1/β
+      cv::Mat gx = forwardDifference(u, true), gy = forwardDifference(u, false);
+      cv::Mat magnitude;
+      cv::magnitude(gx, gy, magnitude);
+      cv::Mat scale = cv::max(magnitude - 1.0 / beta, 0.0) / cv::max(magnitude, 1e-12);
+      gx = gx.mul(scale);
+      gy = gy.mul(scale);
+      // MM: masked-out data replaced by the current prediction K ⊗ u
+      if (masked) {
+        const cv::Mat prediction = realInverse(multiply(u_spectrum, kernel_spectrum));
+        const cv::Mat f_filled = f + inverse_mask.mul(prediction - f);
+        data_spectrum = multiply(spectrum(f_filled), kernel_spectrum, true);
+      }
+      // u-step: (DᵀD + λ/β KᵀK) u = Dᵀw + λ/β Kᵀḟ, diagonal in Fourier
+      cv::Mat numerator = multiply(spectrum(gx), dx_spectrum, true) + multiply(spectrum(gy), dy_spectrum, true) +
+                          ratio * data_spectrum;
+      u_spectrum = divideByReal(numerator, denominator);
+      const cv::Mat next = realInverse(u_spectrum);
+      const double change = cv::norm(next, u, cv::NORM_L2) / std::max(cv::norm(next, cv::NORM_L2), 1e-12);
+      u = next;
+      ++steps;
+      if (change < options.tolerance) break;
+    }
+  }
+  if (iterations) *iterations = steps;
+  return u;
+}
+
+cv::Mat toUnitDouble(const cv::Mat& image) {
+  const double scale = image.depth() == CV_8U ? 1.0 / 255 : image.depth() == CV_16U ? 1.0 / 65535 : 1.0;
+  if (image.depth() != CV_8U && image.depth() != CV_16U && image.depth() != CV_32F && image.depth() != CV_64F)
+    throw InvalidInput("images to deblur must be 8-bit, 16-bit or floating point");
+  cv::Mat unit;
+  image.convertTo(unit, CV_MAKETYPE(CV_64F, image.channels()), scale);
+  return unit;
+}
+
+}  // namespace
+
+DeconvolutionMethod parseDeconvolutionMethod(const std::string& name) {
+  if (name == "tv") return DeconvolutionMethod::TotalVariation;
+  if (name == "wiener") return DeconvolutionMethod::Wiener;
+  throw InvalidInput("unknown deconvolution method '" + name + "' (tv or wiener)");
+}
+
+DeconvolutionDomain parseDeconvolutionDomain(const std::string& name) {
+  if (name == "irradiance") return DeconvolutionDomain::Irradiance;
+  if (name == "intensity") return DeconvolutionDomain::Intensity;
+  throw InvalidInput("unknown deconvolution domain '" + name + "' (irradiance or intensity)");
+}
+
+const char* toString(DeconvolutionMethod method) {
+  return method == DeconvolutionMethod::TotalVariation ? "tv" : "wiener";
+}
+
+const char* toString(DeconvolutionDomain domain) {
+  return domain == DeconvolutionDomain::Irradiance ? "irradiance" : "intensity";
+}
+
+void DeconvolutionOptions::check() const {
+  if (!(lambda > 0) || !std::isfinite(lambda)) throw InvalidInput("deconvolution lambda must be positive");
+  if (!(beta_start > 0) || !(beta_max >= beta_start) || !std::isfinite(beta_max))
+    throw InvalidInput("deconvolution needs 0 < beta_start <= beta_max");
+  if (!(beta_factor > 1)) throw InvalidInput("deconvolution beta_factor must exceed 1");
+  if (inner_iterations < 1) throw InvalidInput("deconvolution needs at least one inner iteration");
+  if (!(tolerance >= 0)) throw InvalidInput("deconvolution tolerance must be non-negative");
+  if (!(wiener_nsr > 0)) throw InvalidInput("Wiener noise-to-signal ratio must be positive");
+  if (!(saturation > 0 && saturation <= 1)) throw InvalidInput("saturation level must lie in (0, 1]");
+}
+
+std::string DeconvolutionResult::summary() const {
+  char text[320];
+  std::snprintf(text, sizeof text,
+                "%s deconvolution in the %s domain: %dx%d, %d channel(s), FFT %dx%d, %d u-step(s) per channel, "
+                "%lld saturated pixel-channel(s) masked, %.2f s",
+                toString(options.method), toString(options.domain), deblurred.cols, deblurred.rows,
+                deblurred.channels(), padded_size.width, padded_size.height, iterations, saturated_pixels, seconds);
+  return text;
+}
+
+cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const cv::Mat& data_mask,
+                          const DeconvolutionOptions& options, int* iterations) {
+  options.check();
+  if (observed.empty() || observed.channels() != 1) throw InvalidInput("deconvolveChannel needs one channel");
+  if (!data_mask.empty() && data_mask.size() != observed.size())
+    throw InvalidInput("deconvolution mask and image differ in size");
+  const cv::Mat k = normalizeKernel(kernel);
+  cv::Mat f;
+  observed.convertTo(f, CV_64F);
+
+  const Padding padding = choosePadding(f.size(), k);
+  const cv::Mat padded = reflectPad(f, padding);
+  const cv::Mat kernel_spectrum = kernelSpectrum(k, padding.padded);
+  cv::Mat u;
+  if (options.method == DeconvolutionMethod::Wiener) {
+    u = wienerSolve(padded, kernel_spectrum, options.wiener_nsr);
+    if (iterations) *iterations = 1;
+  } else {
+    cv::Mat mask(padding.padded, CV_8U, cv::Scalar(options.free_boundary ? 0 : 255));
+    if (data_mask.empty()) mask(padding.interior()).setTo(255);
+    else cv::Mat(data_mask != 0).copyTo(mask(padding.interior()));
+    u = totalVariationSolve(padded, mask, kernel_spectrum, options, iterations);
+  }
+  return u(padding.interior()).clone();
+}
+
+DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, const std::vector<ResponseCurve>& curves,
+                               const DeconvolutionOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  options.check();
+  if (blurred.empty()) throw InvalidInput("image to deblur is empty");
+  const int channels = blurred.channels();
+  if (curves.size() != 1 && static_cast<int>(curves.size()) != channels)
+    throw InvalidInput("deblurring needs one response curve or one per channel (" + std::to_string(channels) + ")");
+  const cv::Mat k = normalizeKernel(kernel);
+  std::vector<cv::Mat> planes;
+  cv::split(toUnitDouble(blurred), planes);
+
+  std::vector<cv::Mat> results(channels);
+  std::vector<int> steps(channels, 0);
+  std::vector<long long> saturated(channels, 0);
+  cv::parallel_for_(cv::Range(0, channels), [&](const cv::Range& range) {
+    for (int c = range.start; c < range.end; ++c) {
+      const ResponseCurve& curve = curves.size() == 1 ? curves[0] : curves[c];
+      const bool irradiance = options.domain == DeconvolutionDomain::Irradiance;
+      cv::Mat mask;
+      if (options.mask_saturated && options.method == DeconvolutionMethod::TotalVariation) {
+        mask = planes[c] < options.saturation;
+        saturated[c] = static_cast<long long>(mask.total()) - cv::countNonZero(mask);
+      }
+      const cv::Mat observed = irradiance ? curve.inverse(planes[c]) : planes[c];
+      cv::Mat u = deconvolveChannel(observed, k, mask, options, &steps[c]);
+      cv::Mat clamped = cv::min(cv::max(u, 0.0), 1.0);
+      results[c] = irradiance ? curve.forward(clamped) : clamped;
+    }
+  });
+
+  DeconvolutionResult result;
+  cv::merge(results, result.deblurred);
+  result.options = options;
+  result.iterations = steps[0];
+  for (long long s : saturated) result.saturated_pixels += s;
+  result.padded_size = choosePadding(blurred.size(), k).padded;
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return result;
+}
+
+double psnr(const cv::Mat& estimate, const cv::Mat& reference, int border) {
+  if (estimate.size() != reference.size() || estimate.channels() != reference.channels())
+    throw InvalidInput("PSNR needs images of the same size and channels");
+  const cv::Rect inside(border, border, estimate.cols - 2 * border, estimate.rows - 2 * border);
+  if (inside.width <= 0 || inside.height <= 0) throw InvalidInput("PSNR border leaves no pixels");
+  cv::Mat a, b;
+  estimate(inside).convertTo(a, CV_64F);
+  reference(inside).convertTo(b, CV_64F);
+  const double squared = cv::norm(a, b, cv::NORM_L2SQR) / (static_cast<double>(a.total()) * a.channels());
+  return 10 * std::log10(1.0 / std::max(squared, 1e-20));
+}
+
+}  // namespace crfcal

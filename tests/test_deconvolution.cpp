@@ -1,0 +1,282 @@
+// Non-blind deconvolution (deconvolution.hpp) and `crfcal deblur`: the seed's Sec. 3.2 — deblurring intensities of
+// a non-linear camera rings (Eq. 18), deblurring irradiance does not.
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "crfcal/blur_model.hpp"
+#include "crfcal/deconvolution.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/kernel.hpp"
+#include "crfcal/response_curve.hpp"
+#include "crfcal/response_model.hpp"
+#include "test_support.hpp"
+
+namespace crfcal {
+namespace {
+
+ResponseCurve gammaCurve(double gamma) { return ResponseCurve(GammaModel{gamma}); }
+
+// The test image: im1 of the Levin set (255×255 grey, [0,1]).
+cv::Mat sharpImage() { return test::levinImage(1); }
+
+double rmse(const cv::Mat& a, const cv::Mat& b) {
+  return std::sqrt(cv::norm(a, b, cv::NORM_L2SQR) / static_cast<double>(a.total()));
+}
+
+TEST(Deconvolution, TvRecoversNoiseFreeIntensityBlurWithTrueKernel) {
+  const cv::Mat sharp = sharpImage();
+  const cv::Mat kernel = test::levinKernel(2);
+  const cv::Mat blurred = convolve(sharp, kernel);  // linear camera: no blur inconsistency
+  const DeconvolutionResult result = deconvolve(blurred, kernel, {ResponseCurve()}, {});
+  const double before = psnr(blurred, sharp), after = psnr(result.deblurred, sharp);
+  std::printf("noise-free linear blur, levin kernel 2: blurred %.2f dB, TV %.2f dB (%s)\n", before, after,
+              result.summary().c_str());
+  EXPECT_GT(after, 34.0);
+  EXPECT_GT(after, before + 10.0);
+}
+
+TEST(Deconvolution, WienerBaselineSharpensNoiseFreeBlur) {
+  const cv::Mat sharp = sharpImage();
+  const cv::Mat kernel = test::levinKernel(3);
+  DeconvolutionOptions options;
+  options.method = DeconvolutionMethod::Wiener;
+  const cv::Mat blurred = convolve(sharp, kernel);
+  const double before = psnr(blurred, sharp, 30);
+  const double after = psnr(deconvolve(blurred, kernel, {ResponseCurve()}, options).deblurred, sharp, 30);
+  std::printf("noise-free linear blur, levin kernel 3, 30 px from the border: blurred %.2f dB, Wiener %.2f dB\n",
+              before, after);
+  EXPECT_GT(after, before + 10.0);
+}
+
+// The kernel convention matches crfcal::convolve (convolution, centre cols/2, rows/2): an asymmetric kernel is
+// undone by deconvolving with it, not with its mirror image.
+TEST(Deconvolution, MatchesConvolveConventionForAsymmetricKernel) {
+  const cv::Mat sharp = sharpImage();
+  const cv::Mat kernel = (cv::Mat_<double>(3, 7) << 0, 0, 0, 0, 0, 0, 0,  //
+                          0, 0, 0, 0.1, 0.2, 0.3, 0.4,                   //
+                          0, 0, 0, 0, 0, 0, 0);
+  cv::Mat mirrored;
+  cv::flip(kernel, mirrored, -1);
+  const cv::Mat blurred = convolve(sharp, kernel);
+  const double right = psnr(deconvolve(blurred, kernel, {ResponseCurve()}, {}).deblurred, sharp);
+  const double wrong = psnr(deconvolve(blurred, mirrored, {ResponseCurve()}, {}).deblurred, sharp);
+  std::printf("asymmetric kernel: %.2f dB with the kernel, %.2f dB with its mirror\n", right, wrong);
+  EXPECT_GT(right, 38.0);
+  EXPECT_GT(right, wrong + 10.0);
+}
+
+// Boundaries: the blur near the image border involves pixels outside it. Fitting a reflect-padded image (or the
+// FFT's wrap-around) rings from the border inwards; with the padding out of the data term the error in a band of
+// one kernel size at the border stays close to the error inside.
+TEST(Deconvolution, NoWrapAroundRingingAtBorders) {
+  const cv::Mat sharp = sharpImage();
+  const cv::Mat kernel = test::levinKernel(1);
+  const int band = std::max(kernel.rows, kernel.cols);
+  const cv::Rect inner(band, band, sharp.cols - 2 * band, sharp.rows - 2 * band);
+  cv::Mat border_mask(sharp.size(), CV_8U, cv::Scalar(255));
+  border_mask(inner).setTo(0);
+  const auto borderAndInner = [&](const DeconvolutionOptions& options) {
+    const cv::Mat deblurred = deconvolve(convolve(sharp, kernel), kernel, {ResponseCurve()}, options).deblurred;
+    const cv::Mat error = deblurred - sharp;
+    return std::pair{std::sqrt(cv::mean(error.mul(error), border_mask)[0]), rmse(deblurred(inner), sharp(inner))};
+  };
+  const auto [border_rmse, inner_rmse] = borderAndInner({});
+  DeconvolutionOptions reflect;
+  reflect.free_boundary = false;
+  const auto [reflect_border_rmse, reflect_inner_rmse] = borderAndInner(reflect);
+  std::printf("border band %d px: RMSE %.4f at the border, %.4f inside; reflect-padded data: %.4f / %.4f\n", band,
+              border_rmse, inner_rmse, reflect_border_rmse, reflect_inner_rmse);
+  EXPECT_LT(border_rmse, 3.0 * inner_rmse);
+  EXPECT_LT(border_rmse, 0.5 * reflect_border_rmse);
+}
+
+struct DomainComparison {
+  double blurred = 0, intensity = 0, irradiance = 0;
+};
+
+DomainComparison compareDomains(const cv::Mat& sharp, const cv::Mat& kernel, const ResponseCurve& curve,
+                                DeconvolutionMethod method) {
+  const cv::Mat blurred = quantize(irradianceBlur(sharp, curve, kernel), 8);  // what a camera records
+  DeconvolutionOptions options;
+  options.method = method;
+  DomainComparison psnrs;
+  psnrs.blurred = psnr(blurred, sharp);
+  options.domain = DeconvolutionDomain::Intensity;
+  psnrs.intensity = psnr(deconvolve(blurred, kernel, {curve}, options).deblurred, sharp);
+  options.domain = DeconvolutionDomain::Irradiance;
+  psnrs.irradiance = psnr(deconvolve(blurred, kernel, {curve}, options).deblurred, sharp);
+  return psnrs;
+}
+
+// Sec. 3.2, Fig. 4: with gamma 2.2, TV on φ(B) beats TV on B.
+TEST(Deconvolution, IrradianceDomainBeatsIntensityDomainUnderGamma22) {
+  const cv::Mat sharp = sharpImage();
+  const ResponseCurve curve = gammaCurve(2.2);
+  double margin_sum = 0;
+  for (int k : {1, 2, 5}) {
+    const DomainComparison psnrs =
+        compareDomains(sharp, test::levinKernel(k), curve, DeconvolutionMethod::TotalVariation);
+    std::printf("gamma 2.2, levin kernel %d: blurred %.2f dB, TV intensity %.2f dB, TV irradiance %.2f dB\n", k,
+                psnrs.blurred, psnrs.intensity, psnrs.irradiance);
+    EXPECT_GT(psnrs.irradiance, psnrs.intensity + 2.0) << "kernel " << k;
+    margin_sum += psnrs.irradiance - psnrs.intensity;
+  }
+  EXPECT_GT(margin_sum / 3, 4.0);
+}
+
+// Saturated pixels of B record only a lower bound: masked out of the data term, they no longer pull the estimate
+// down around bright regions.
+TEST(Deconvolution, MaskingSaturatedPixelsReducesErrorAroundThem) {
+  const cv::Mat sharp = sharpImage();
+  const ResponseCurve curve = gammaCurve(2.2);
+  const cv::Mat kernel = test::levinKernel(2);
+  const double ratio = 2.0;  // overexposed: the bright parts of the scene clip
+  cv::Mat exposed = curve.inverse(sharp) * ratio;
+  const cv::Mat truth = curve.forward(cv::min(exposed, 1.0));  // the sharp shot at the same exposure
+  const cv::Mat blurred = quantize(irradianceBlur(sharp, curve, kernel, ratio), 8);
+  const cv::Mat saturated = blurred >= 0.99;
+  ASSERT_GT(cv::countNonZero(saturated), 1000);
+  // evaluate where the truth is not clipped (there both runs can be judged) near the saturated regions
+  cv::Mat near;
+  cv::dilate(saturated, near, cv::getStructuringElement(cv::MORPH_RECT, {2 * kernel.cols + 1, 2 * kernel.rows + 1}));
+  near &= (truth < 0.99);
+  DeconvolutionOptions options;
+  const DeconvolutionResult masked = deconvolve(blurred, kernel, {curve}, options);
+  options.mask_saturated = false;
+  const DeconvolutionResult unmasked = deconvolve(blurred, kernel, {curve}, options);
+  cv::Mat masked_error = masked.deblurred - truth, unmasked_error = unmasked.deblurred - truth;
+  const double masked_rmse = std::sqrt(cv::mean(masked_error.mul(masked_error), near)[0]);
+  const double unmasked_rmse = std::sqrt(cv::mean(unmasked_error.mul(unmasked_error), near)[0]);
+  std::printf("r = 2: %lld saturated pixels; RMSE near them %.4f masked, %.4f unmasked\n", masked.saturated_pixels,
+              masked_rmse, unmasked_rmse);
+  EXPECT_EQ(masked.saturated_pixels, cv::countNonZero(saturated));
+  EXPECT_LT(masked_rmse, 0.8 * unmasked_rmse);
+}
+
+TEST(Deconvolution, ColourChannelsUseTheirOwnCurves) {
+  const cv::Mat sharp = sharpImage()(cv::Rect(60, 60, 128, 128)).clone();
+  const cv::Mat kernel = test::levinKernel(1);
+  const std::vector<ResponseCurve> curves{gammaCurve(1.8), gammaCurve(2.2), gammaCurve(2.6)};
+  std::vector<cv::Mat> planes;
+  for (const auto& curve : curves) planes.push_back(quantize(irradianceBlur(sharp, curve, kernel), 16));
+  cv::Mat colour;
+  cv::merge(planes, colour);
+  const DeconvolutionResult result = deconvolve(colour, kernel, curves, {});
+  ASSERT_EQ(result.deblurred.channels(), 3);
+  std::vector<cv::Mat> out;
+  cv::split(result.deblurred, out);
+  for (int c = 0; c < 3; ++c) {
+    const double single = psnr(deconvolve(planes[c], kernel, {curves[c]}, {}).deblurred, sharp);
+    EXPECT_NEAR(psnr(out[c], sharp), single, 1e-6) << "channel " << c;
+  }
+}
+
+TEST(Deconvolution, RejectsBadOptionsAndKernels) {
+  DeconvolutionOptions options;
+  options.lambda = 0;
+  EXPECT_THROW(options.check(), InvalidInput);
+  options = {};
+  options.beta_factor = 1;
+  EXPECT_THROW(options.check(), InvalidInput);
+  EXPECT_THROW(parseDeconvolutionDomain("radiance"), InvalidInput);
+  EXPECT_EQ(parseDeconvolutionMethod("wiener"), DeconvolutionMethod::Wiener);
+  const cv::Mat image(20, 20, CV_64F, cv::Scalar(0.5));
+  const cv::Mat negative = (cv::Mat_<double>(1, 3) << 0.5, -1.0, 0.2);
+  EXPECT_THROW(deconvolve(image, negative, {ResponseCurve()}), InvalidInput);
+  EXPECT_THROW(deconvolve(image, boxKernel(3), {ResponseCurve(), ResponseCurve()}), InvalidInput);
+}
+
+// ---- crfcal deblur ----------------------------------------------------------------------------------------------
+
+std::string quote(const std::filesystem::path& path) { return "'" + path.string() + "'"; }
+
+int lineCount(const std::string& text) {
+  int lines = 0;
+  for (char c : text) lines += c == '\n';
+  return lines + (!text.empty() && text.back() != '\n');
+}
+
+// A small gamma-2.2 blurred grey image as a 16-bit PNG.
+std::filesystem::path writeBlurred(const test::TempDir& dir) {
+  const cv::Mat sharp = sharpImage()(cv::Rect(80, 80, 96, 80)).clone();
+  const cv::Mat blurred = quantize(irradianceBlur(sharp, gammaCurve(2.2), test::levinKernel(5)), 16);
+  cv::Mat sixteen;
+  blurred.convertTo(sixteen, CV_16U, 65535.0);
+  const auto path = dir / "blurred.png";
+  cv::imwrite(path.string(), sixteen);
+  return path;
+}
+
+void expectSixteenBitOutputs(const std::filesystem::path& out, cv::Size size) {
+  for (const char* name : {"deblurred.png", "deblurred_other_domain.png"}) {
+    const cv::Mat image = cv::imread((out / name).string(), cv::IMREAD_UNCHANGED);
+    ASSERT_FALSE(image.empty()) << name;
+    EXPECT_EQ(image.depth(), CV_16U) << name;
+    EXPECT_EQ(image.size(), size) << name;
+  }
+  const cv::Mat composite = cv::imread((out / "side_by_side.png").string(), cv::IMREAD_UNCHANGED);
+  ASSERT_FALSE(composite.empty());
+  EXPECT_GE(composite.cols, 3 * size.width);
+}
+
+TEST(DeblurCli, WritesSixteenBitResultsInBothDomains) {
+  test::TempDir dir;
+  const auto blurred = writeBlurred(dir);
+  const auto kernel = test::samples() / "levin09" / "kernel05.txt";
+  const auto result = test::run(quote(test::crfcalBinary()) + " deblur " + quote(blurred) + " --kernel " +
+                                quote(kernel) + " --crf gamma:2.2 -o " + quote(dir / "out"));
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  expectSixteenBitOutputs(dir / "out", {96, 80});
+  // deblurred.png is the irradiance domain (default): closer to the sharp image than the intensity domain
+  const cv::Mat sharp = sharpImage()(cv::Rect(80, 80, 96, 80));
+  const auto unit = [&](const char* name) {
+    cv::Mat image = cv::imread((dir / "out" / name).string(), cv::IMREAD_UNCHANGED), converted;
+    image.convertTo(converted, CV_64F, 1.0 / 65535);
+    return converted;
+  };
+  EXPECT_GT(psnr(unit("deblurred.png"), sharp), psnr(unit("deblurred_other_domain.png"), sharp) + 1.0);
+}
+
+TEST(DeblurCli, FromReportTakesCurveAndKernelText) {
+  test::TempDir dir;
+  const auto blurred = writeBlurred(dir);
+  std::filesystem::create_directories(dir / "calibration");
+  std::filesystem::copy_file(test::samples() / "levin09" / "kernel05.txt", dir / "calibration" / "kernel.txt");
+  std::ofstream report(dir / "calibration" / "report.json");
+  report << "{\"command\": \"calibrate\", \"inverse_crf\": {\"G\": [";
+  for (int i = 0; i < 1024; ++i) report << (i ? "," : "") << std::pow(i / 1023.0, 2.2);
+  report << "]}, \"kernel\": {\"size\": [13, 13], \"file\": \"kernel.png\", \"text\": \"kernel.txt\"}}\n";
+  report.close();
+  const auto result = test::run(quote(test::crfcalBinary()) + " deblur " + quote(blurred) + " --from " +
+                                quote(dir / "calibration" / "report.json") + " --domain intensity -o " +
+                                quote(dir / "out"));
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  expectSixteenBitOutputs(dir / "out", {96, 80});
+  EXPECT_NE(result.output.find("intensity domain"), std::string::npos) << result.output;
+}
+
+TEST(DeblurCli, BadKernelExitsOneWithOneLine) {
+  test::TempDir dir;
+  const auto blurred = writeBlurred(dir);
+  const std::string command = quote(test::crfcalBinary()) + " deblur " + quote(blurred) + " --crf gamma:2.2 -o " +
+                              quote(dir / "out") + " --kernel ";
+  const auto missing = test::run(command + quote(dir / "no_such_kernel.txt"));
+  EXPECT_EQ(missing.exit_code, 1) << missing.output;
+  EXPECT_EQ(lineCount(missing.output), 1) << missing.output;
+  EXPECT_NE(missing.output.find("no_such_kernel.txt"), std::string::npos) << missing.output;
+
+  std::ofstream(dir / "negative.txt") << "0.5 -2 0.5\n";
+  const auto negative = test::run(command + quote(dir / "negative.txt"));
+  EXPECT_EQ(negative.exit_code, 1) << negative.output;
+  EXPECT_EQ(lineCount(negative.output), 1) << negative.output;
+  EXPECT_NE(negative.output.find("negative.txt"), std::string::npos) << negative.output;
+  EXPECT_FALSE(std::filesystem::exists(dir / "out"));
+}
+
+}  // namespace
+}  // namespace crfcal
