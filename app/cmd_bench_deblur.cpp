@@ -16,6 +16,7 @@
 #include "crfcal/deconvolution.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/output_guard.hpp"
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/response_io.hpp"
@@ -33,6 +34,7 @@ struct DeblurBenchArgs {
   std::string method = "tv";
   double lambda = DeconvolutionOptions{}.lambda;
   std::string json;
+  bool force = false;  // --json over a file crfcal did not write (never deletes it)
   bool per_case = false;
 };
 
@@ -62,6 +64,7 @@ int runDeblurBench(const DeblurBenchArgs& args) {
   options.method = parseDeconvolutionMethod(args.method);
   options.lambda = args.lambda;
   options.check();
+  if (!args.json.empty()) io::checkJsonOutputFile(args.json, {"bench deblur", {}, args.force});  // before the work
 
   std::vector<cv::Mat> images;
   for (int i = 1; i <= args.images; ++i)
@@ -111,7 +114,7 @@ int runDeblurBench(const DeblurBenchArgs& args) {
     if (&spec == &curves.back() && curves.size() > 1) row("all", all);
   }
   std::printf("%.1f s\n", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
-  if (!args.json.empty()) io::writeTextFile(args.json, json.dump(1) + "\n");
+  if (!args.json.empty()) io::writeJsonOutput(args.json, json, "bench deblur");
   return kExitOk;
 }
 
@@ -131,6 +134,7 @@ const BenchRegistration registration(
       command.add_option("--lambda", args->lambda, "TV data weight")->check(CLI::PositiveNumber);
       command.add_flag("--per-case", args->per_case, "Print one row per image and kernel");
       command.add_option("--json", args->json, "Write every case to this JSON file (atomic)");
+      command.add_flag("--force", args->force, kForceHelp);
       return [args] { return runDeblurBench(*args); };
     });
 

@@ -13,6 +13,7 @@
 #include "crfcal/deconvolution.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/output_guard.hpp"
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/report.hpp"
@@ -34,6 +35,7 @@ struct DeblurArgs {
   double wiener_nsr = DeconvolutionOptions{}.wiener_nsr;
   double saturation = DeconvolutionOptions{}.saturation;
   std::string output;
+  bool force = false;  // write into an output directory holding other files (never deletes them)
 };
 
 bool endsWith(const std::string& text, const std::string& suffix) {
@@ -118,6 +120,15 @@ int runDeblur(const DeblurArgs& args) {
   if (args.kernel.empty() && args.from.empty()) throw InvalidInput("give --kernel or --from REPORT.json");
   if (args.crf.empty() && args.from.empty()) throw InvalidInput("give --crf or --from REPORT.json");
 
+  // Decided before the computation: a refused or unwritable output directory fails at once.
+  std::vector<std::filesystem::path> inputs{args.blurred};
+  for (const auto* spec : {&args.kernel, &args.crf}) if (!spec->empty()) inputs.push_back(io::specInput(*spec));
+  if (!args.from.empty()) {
+    inputs.push_back(args.from);
+    inputs.push_back(std::filesystem::path(args.from).parent_path() / "kernel.txt");
+  }
+  io::OutputDirectory out(args.output, {"deblur", inputs, args.force});
+
   const cv::Mat blurred = toUnit(io::readImage(args.blurred));
   const cv::Mat kernel = !args.kernel.empty() ? io::kernelFromSpec(args.kernel) : kernelOfReport(args.from);
   const std::vector<ResponseCurve> curves = curvesFor(args.crf.empty() ? args.from : args.crf, blurred.channels());
@@ -131,7 +142,6 @@ int runDeblur(const DeblurArgs& args) {
   const cv::Mat& intensity_result = irradiance_chosen ? other.deblurred : chosen.deblurred;
   const cv::Mat& irradiance_result = irradiance_chosen ? chosen.deblurred : other.deblurred;
 
-  io::OutputDirectory out(args.output);
   io::writeUnitImage(out.file("deblurred.png"), chosen.deblurred, 16);
   io::writeUnitImage(out.file("deblurred_other_domain.png"), other.deblurred, 16);
   io::writeImage(out.file("side_by_side.png"), sideBySide(blurred, intensity_result, irradiance_result));
@@ -167,7 +177,8 @@ const CommandRegistration registration(
       command.add_option("--saturation", args->saturation,
                          "Pixels at or above this level (0..1) are saturated and left out of the TV data term")
           ->check(CLI::Range(0.01, 1.0));
-      command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
+      command.add_option("-o,--output", args->output, "Output directory (see --force)")->required();
+      command.add_flag("--force", args->force, kForceHelp);
       return [args] { return runDeblur(*args); };
     });
 

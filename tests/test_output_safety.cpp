@@ -380,7 +380,7 @@ TEST(OutputSafety, InterruptedBenchPairsRemovesItsHalfWrittenCases) {
 TEST(OutputSafety, EveryCommandThatWritesOutputDocumentsForce) {
   for (const char* command : {"calibrate", "chart", "compare", "simulate", "theory", "curves middlebury",
                               "study channels", "study noise", "study ratio", "bench pairs", "bench synthetic",
-                              "bench chart", "bench effects", "bench raw-truth"}) {
+                              "bench chart", "bench effects", "bench raw-truth", "deblur", "bench deblur"}) {
     const auto help = test::run(bin() + " " + command + " --help");
     EXPECT_EQ(help.exit_code, 0) << command;
     EXPECT_NE(help.output.find("--force"), std::string::npos) << command;
