@@ -15,6 +15,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "option_checks.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/handheld_simulation.hpp"
 #include "crfcal/io/atomic_output.hpp"
@@ -242,13 +243,14 @@ const BenchRegistration registration(
                          "True inverse response(s) phi (spec; default: measured curves of three cameras in "
                          "samples/camera_curves)");
       command.add_option("--kernel", args->kernels, "True kernel(s): levin:N | box:L | FILE");
-      command.add_option("--ratio", args->ratios, "True exposure ratio(s) r")->check(CLI::PositiveNumber);
+      command.add_option("--ratio", args->ratios, "True exposure ratio(s) r")->check(exposureRatioOption(false));
       command.add_option("--exif-error", args->exif_error, "Relative error of the EXIF ratio against the truth");
       command.add_option("--shift", args->shift, "Handheld shift magnitude, pixels (direction varies per case)");
       command.add_option("--rotation", args->rotation, "Handheld rotation, degrees (sign alternates per case)");
       command.add_option("--quality", args->quality, "JPEG quality")->check(CLI::Range(50, 100));
       command.add_option("--max-side", args->max_side, "Downscale the photo to this longest side");
-      command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)");
+      command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)")
+          ->check(CLI::Range(3, 151) & oddNumber());
       command.add_option("--channels", args->channels, "g or rgb")->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--noise-handling", args->noise_handling, "The sharp shot's noise in the fit: jensen, none, debias, denoise")
           ->capture_default_str()
