@@ -100,6 +100,9 @@ int runChart(ChartArgs args) {
   if (!args.corners.empty() && args.corners.size() != 1 && args.corners.size() != args.images.size())
     throw InvalidInput("--corners: give one set for all images or one per image");
   const io::ChartLayout layout = io::parseChartLayout(args.layout);
+  // A bad --truth (NaN, decreasing, not a curve) is refused before the calibration, not after it; the same reader
+  // and validation as every other curve (io::readCurveTable, checkInverseSamples).
+  if (!args.truth.empty()) io::readCurveTable(args.truth, args.channels.find('G') != std::string::npos ? "G" : "R");
   ChartCalibrationOptions options = args.options;
   options.use_raw = !args.raws.empty();
   options.raw_neutral_only = args.patches == "neutral";

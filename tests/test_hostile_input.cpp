@@ -21,7 +21,7 @@ using crfcal::test::TempDir;
 
 namespace {
 
-std::string crfcal(const std::string& arguments) { return crfcal::test::crfcalBinary().string() + " " + arguments; }
+std::string command(const std::string& arguments) { return crfcal::test::crfcalBinary().string() + " " + arguments; }
 
 std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
 
@@ -44,10 +44,15 @@ void expectRefused(const std::string& command, int exit_code, const std::string&
   EXPECT_NE(result.output.find(reason), std::string::npos) << command << "\n" << result.output;
   int error_lines = 0;
   std::size_t at = 0;
-  while ((at = result.output.find("error:", at)) != std::string::npos) ++error_lines, ++at;
+  while ((at = result.output.find("error:", at)) != std::string::npos) {
+    ++error_lines;
+    ++at;
+  }
   EXPECT_EQ(error_lines, 1) << result.output;
   for (const unsigned char c : result.output) EXPECT_LT(c, 0x80) << "raw byte in: " << result.output;
-  if (!output.empty()) EXPECT_FALSE(fs::exists(output)) << output;
+  if (!output.empty()) {
+    EXPECT_FALSE(fs::exists(output)) << output;
+  }
 }
 
 // A textured 8-bit colour image (edges everywhere), deterministic.
@@ -83,7 +88,7 @@ TEST(HostileCalibrate, TruncatedCameraJpegAt31000BytesIsRefusedAsTruncated) {
   ASSERT_GT(bytes.size(), 31000u);
   bytes.resize(31000);
   writeBytes(dir / "cut.jpg", bytes);
-  expectRefused(crfcal("calibrate -q " + quoted(dir / "cut.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate -q " + quoted(dir / "cut.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 1, "cut.jpg: truncated JPEG (premature end of data)", dir / "out");
 }
 
@@ -92,13 +97,13 @@ TEST(HostileCalibrate, JpegCutAtHalfIsRefusedAsTruncated) {
   auto bytes = bytesOf(kBlurred);
   bytes.resize(bytes.size() / 2);
   writeBytes(dir / "half.jpg", bytes);
-  expectRefused(crfcal("calibrate -q " + quoted(kSharp) + " " + quoted(dir / "half.jpg") + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate -q " + quoted(kSharp) + " " + quoted(dir / "half.jpg") + " -o " + quoted(dir / "out")),
                 1, "half.jpg: truncated JPEG", dir / "out");
 }
 
 TEST(HostileCalibrate, SameFileTwiceIsRefusedAsIdentical) {
   TempDir dir;
-  expectRefused(crfcal("calibrate -q " + quoted(kSharp) + " " + quoted(kSharp) + " -o " + quoted(dir / "out")), 1,
+  expectRefused(command("calibrate -q " + quoted(kSharp) + " " + quoted(kSharp) + " -o " + quoted(dir / "out")), 1,
                 "the two images are identical", dir / "out");
 }
 
@@ -106,7 +111,7 @@ TEST(HostileCalibrate, TwoIdenticalCopiesAreRefusedAsIdentical) {
   TempDir dir;
   fs::copy_file(kSharp, dir / "a.jpg");
   fs::copy_file(kSharp, dir / "b.jpg");
-  expectRefused(crfcal("calibrate -q " + quoted(dir / "a.jpg") + " " + quoted(dir / "b.jpg") + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate -q " + quoted(dir / "a.jpg") + " " + quoted(dir / "b.jpg") + " -o " + quoted(dir / "out")),
                 1, "the two images are identical", dir / "out");
 }
 
@@ -114,7 +119,7 @@ TEST(HostileCalibrate, BlackSharpShotIsRefusedAsBlackNotAsNoOverlap) {
   TempDir dir;
   cv::imwrite((dir / "black.png").string(), cv::Mat::zeros(240, 320, CV_8UC3));
   cv::imwrite((dir / "blurred.png").string(), texture(320, 240));
-  expectRefused(crfcal("calibrate -q --blurred second --ratio 4 " + quoted(dir / "black.png") + " " +
+  expectRefused(command("calibrate -q --blurred second --ratio 4 " + quoted(dir / "black.png") + " " +
                        quoted(dir / "blurred.png") + " -o " + quoted(dir / "out")),
                 1, "black.png: the sharp image is black", dir / "out");
 }
@@ -123,7 +128,7 @@ TEST(HostileCalibrate, UniformBlurredShotIsRefusedAsUniform) {
   TempDir dir;
   cv::imwrite((dir / "sharp.png").string(), texture(320, 240));
   cv::imwrite((dir / "grey.png").string(), cv::Mat(240, 320, CV_8UC3, cv::Scalar::all(128)));
-  expectRefused(crfcal("calibrate -q --blurred second --ratio 4 " + quoted(dir / "sharp.png") + " " +
+  expectRefused(command("calibrate -q --blurred second --ratio 4 " + quoted(dir / "sharp.png") + " " +
                        quoted(dir / "grey.png") + " -o " + quoted(dir / "out")),
                 1, "grey.png: the blurred image is uniform", dir / "out");
 }
@@ -135,28 +140,28 @@ TEST(HostileCalibrate, PngHeaderClaiming60000SquaredIsRefusedAsTooLarge) {
   const unsigned char size[] = {0, 0, 0xEA, 0x60};  // 60000, big-endian
   for (int i = 0; i < 4; ++i) bytes[16 + i] = bytes[20 + i] = static_cast<char>(size[i]);
   writeBytes(dir / "huge.png", bytes);
-  expectRefused(crfcal("calibrate -q " + quoted(dir / "huge.png") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate -q " + quoted(dir / "huge.png") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 1, "huge.png: image too large (60000x60000", dir / "out");
 }
 
 TEST(HostileCalibrate, EmptyFileIsRefused) {
   TempDir dir;
   writeText(dir / "empty.jpg", "");
-  expectRefused(crfcal("calibrate -q " + quoted(dir / "empty.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate -q " + quoted(dir / "empty.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 1, "empty.jpg: file is empty", dir / "out");
 }
 
 TEST(HostileCalibrate, DirectoryGivenAsImageIsRefused) {
   TempDir dir;
   fs::create_directory(dir / "folder.jpg");
-  expectRefused(crfcal("calibrate -q " + quoted(dir / "folder.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate -q " + quoted(dir / "folder.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 1, "folder.jpg: is a directory", dir / "out");
 }
 
 TEST(HostileCalibrate, TextFileNamedJpgIsRefusedAsNotAnImage) {
   TempDir dir;
   writeText(dir / "notes.jpg", "these are not pixels\n");
-  expectRefused(crfcal("calibrate -q " + quoted(dir / "notes.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate -q " + quoted(dir / "notes.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 1, "notes.jpg: not a readable image", dir / "out");
 }
 
@@ -164,7 +169,7 @@ TEST(HostileCalibrate, ImagesOfDifferentSizesAreRefused) {
   TempDir dir;
   cv::imwrite((dir / "a.png").string(), texture(320, 240));
   cv::imwrite((dir / "b.png").string(), texture(300, 200));
-  expectRefused(crfcal("calibrate -q " + quoted(dir / "a.png") + " " + quoted(dir / "b.png") + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate -q " + quoted(dir / "a.png") + " " + quoted(dir / "b.png") + " -o " + quoted(dir / "out")),
                 1, "the images differ in size", dir / "out");
 }
 
@@ -173,7 +178,7 @@ TEST(HostileCalibrate, UnreadableImageIsRefusedWhenNotRoot) {
   TempDir dir;
   fs::copy_file(kSharp, dir / "locked.jpg");
   fs::permissions(dir / "locked.jpg", fs::perms::none);
-  expectRefused(crfcal("calibrate -q " + quoted(dir / "locked.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate -q " + quoted(dir / "locked.jpg") + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 1, "locked.jpg", dir / "out");
 }
 
@@ -181,42 +186,42 @@ TEST(HostileCalibrate, UnreadableImageIsRefusedWhenNotRoot) {
 
 TEST(HostileCalibrate, HugeThreadCountIsACommandLineError) {
   TempDir dir;
-  expectRefused(crfcal("calibrate --threads 100000 " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate --threads 100000 " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 2, "--threads", dir / "out");
 }
 
 TEST(HostileCalibrate, HugeExposureRatioIsACommandLineErrorWithTheRange) {
   TempDir dir;
-  expectRefused(crfcal("calibrate --ratio 1e9 " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate --ratio 1e9 " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 2, "0.001 .. 1000", dir / "out");
 }
 
 TEST(HostileCalibrate, NegativeExposureRatioIsACommandLineError) {
   TempDir dir;
-  expectRefused(crfcal("calibrate --ratio -1 " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate --ratio -1 " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 2, "0.001 .. 1000", dir / "out");
 }
 
 TEST(HostileCalibrate, NanExposureRatioIsACommandLineError) {
   TempDir dir;
-  expectRefused(crfcal("calibrate --ratio nan " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate --ratio nan " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 2, "--ratio", dir / "out");
 }
 
 TEST(HostileCalibrate, EvenKernelSizeIsACommandLineError) {
   TempDir dir;
-  expectRefused(crfcal("calibrate --kernel-size 4 " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
+  expectRefused(command("calibrate --kernel-size 4 " + quoted(kSharp) + " " + quoted(kBlurred) + " -o " + quoted(dir / "out")),
                 2, "odd", dir / "out");
 }
 
 TEST(HostileCalibrate, ThreadsOnBenchAreBounded) {
-  const auto result = crfcal::test::run(crfcal("bench --threads 100000"));
+  const auto result = crfcal::test::run(command("bench --threads 100000"));
   EXPECT_EQ(result.exit_code, 2) << result.output;
 }
 
 TEST(HostileSimulate, ExposureRatioOutOfRangeIsACommandLineError) {
   TempDir dir;
-  expectRefused(crfcal("simulate --image " + quoted(crfcal::test::samples() / "levin09" / "im1.png") +
+  expectRefused(command("simulate --image " + quoted(crfcal::test::samples() / "levin09" / "im1.png") +
                        " --crf gamma:2.2 --kernel levin:1 --ratio 1e9 -o " + quoted(dir / "out")),
                 2, "0.001 .. 1000", dir / "out");
 }
@@ -239,7 +244,7 @@ TEST(HostileChart, NegativeAndNanExposuresAreRefused) {
   TempDir dir;
   std::string images;
   for (int i = 0; i < 4; ++i) images += quoted(writeChart(dir / ("c" + std::to_string(i) + ".png"), 0.3 + 0.2 * i)) + " ";
-  expectRefused(crfcal("chart -q " + images + "--exposures 1,-2,4,nan -o " + quoted(dir / "out")), 1,
+  expectRefused(command("chart -q " + images + "--exposures 1,-2,4,nan -o " + quoted(dir / "out")), 1,
                 "positive finite", dir / "out");
 }
 
@@ -247,14 +252,14 @@ TEST(HostileChart, ExposuresThatContradictTheImagesAreRefused) {
   TempDir dir;
   std::string images;
   for (int i = 0; i < 4; ++i) images += quoted(writeChart(dir / ("c" + std::to_string(i) + ".png"), 0.3 + 0.2 * i)) + " ";
-  expectRefused(crfcal("chart -q " + images + "--exposures 8,4,2,1 -o " + quoted(dir / "out")), 1,
+  expectRefused(command("chart -q " + images + "--exposures 8,4,2,1 -o " + quoted(dir / "out")), 1,
                 "must follow the order of the images", dir / "out");
 }
 
 TEST(HostileChart, CornersOutsideTheImageAreRefused) {
   TempDir dir;
   const fs::path chart = writeChart(dir / "chart.png", 1.0);
-  expectRefused(crfcal("chart -q " + quoted(chart) + " --corners 0,0,5000,0,5000,4000,0,4000 -o " + quoted(dir / "out")),
+  expectRefused(command("chart -q " + quoted(chart) + " --corners 0,0,5000,0,5000,4000,0,4000 -o " + quoted(dir / "out")),
                 1, "lies outside the image", dir / "out");
 }
 
@@ -262,7 +267,7 @@ TEST(HostileChart, NanTruthTableIsRefused) {
   TempDir dir;
   const fs::path chart = writeChart(dir / "chart.png", 1.0);
   writeText(dir / "truth.csv", "0\n0.2\nnan\n1\n");
-  expectRefused(crfcal("chart -q " + quoted(chart) + " --truth " + quoted(dir / "truth.csv") + " -o " + quoted(dir / "out")),
+  expectRefused(command("chart -q " + quoted(chart) + " --truth " + quoted(dir / "truth.csv") + " -o " + quoted(dir / "out")),
                 1, "truth.csv: not a valid inverse response", dir / "out");
 }
 
@@ -270,7 +275,7 @@ TEST(HostileChart, NonMonotoneTruthTableIsRefused) {
   TempDir dir;
   const fs::path chart = writeChart(dir / "chart.png", 1.0);
   writeText(dir / "truth.csv", "0\n0.6\n0.3\n1\n");
-  expectRefused(crfcal("chart -q " + quoted(chart) + " --truth " + quoted(dir / "truth.csv") + " -o " + quoted(dir / "out")),
+  expectRefused(command("chart -q " + quoted(chart) + " --truth " + quoted(dir / "truth.csv") + " -o " + quoted(dir / "out")),
                 1, "curve decreases", dir / "out");
 }
 
@@ -283,14 +288,14 @@ TEST(HostileMultiFile, OneTruncatedShotAmongSeveralIsNamed) {
   auto bytes = bytesOf(dir / "b.jpg");
   bytes.resize(bytes.size() * 2 / 3);
   writeBytes(dir / "b_cut.jpg", bytes);
-  expectRefused(crfcal("chart -q " + quoted(a) + " " + quoted(dir / "b_cut.jpg") + " -o " + quoted(dir / "out")), 1,
+  expectRefused(command("chart -q " + quoted(a) + " " + quoted(dir / "b_cut.jpg") + " -o " + quoted(dir / "out")), 1,
                 "b_cut.jpg: truncated JPEG", dir / "out");
 }
 
 TEST(HostileMultiFile, WrongNumberOfExposuresIsRefused) {
   TempDir dir;
   const fs::path a = writeChart(dir / "a.png", 0.5), b = writeChart(dir / "b.png", 1.0);
-  expectRefused(crfcal("chart -q " + quoted(a) + " " + quoted(b) + " --exposures 1,2,4 -o " + quoted(dir / "out")), 1,
+  expectRefused(command("chart -q " + quoted(a) + " " + quoted(b) + " --exposures 1,2,4 -o " + quoted(dir / "out")), 1,
                 "one value per IMAGE", dir / "out");
 }
 
@@ -300,7 +305,7 @@ TEST(HostileMultiFile, ByteFlippedPngAmongShotsIsRefused) {
   auto bytes = bytesOf(b);
   for (std::size_t i = 40; i < bytes.size(); i += 7) bytes[i] = static_cast<char>(bytes[i] ^ 0x5A);
   writeBytes(dir / "b_flipped.png", bytes);
-  const auto result = crfcal::test::run(crfcal("chart -q " + quoted(a) + " " + quoted(dir / "b_flipped.png") + " -o " +
+  const auto result = crfcal::test::run(command("chart -q " + quoted(a) + " " + quoted(dir / "b_flipped.png") + " -o " +
                                                quoted(dir / "out")));
   EXPECT_EQ(result.exit_code, 1) << result.output;
   EXPECT_NE(result.output.find("b_flipped.png"), std::string::npos) << result.output;
@@ -317,9 +322,9 @@ TEST(HostileCompare, ReportWithOutOfRangeCurveIsRefusedLikeExportDoes) {
   phi[200] = -3;
   writeText(dir / "bad.json", reportJson(phi));
   writeText(dir / "good.json", reportJson());
-  expectRefused(crfcal("compare " + quoted(dir / "good.json") + " " + quoted(dir / "bad.json")), 1,
+  expectRefused(command("compare " + quoted(dir / "good.json") + " " + quoted(dir / "bad.json")), 1,
                 "bad.json: \"inverse_crf\".G is not a valid inverse response");
-  expectRefused(crfcal("export " + quoted(dir / "bad.json") + " -f csv -o " + quoted(dir / "x.csv")), 1,
+  expectRefused(command("export " + quoted(dir / "bad.json") + " -f csv -o " + quoted(dir / "x.csv")), 1,
                 "bad.json: \"inverse_crf\".G is not a valid inverse response", dir / "x.csv");
 }
 
@@ -327,7 +332,7 @@ TEST(HostileCompare, BinaryJsonErrorIsPrintable) {
   TempDir dir;
   writeBytes(dir / "binary.json", {'{', '"', 'a', '"', ':', static_cast<char>(0xFF), static_cast<char>(0xFE), '}'});
   writeText(dir / "good.json", reportJson());
-  expectRefused(crfcal("compare " + quoted(dir / "binary.json") + " " + quoted(dir / "good.json")), 1,
+  expectRefused(command("compare " + quoted(dir / "binary.json") + " " + quoted(dir / "good.json")), 1,
                 "binary.json: invalid JSON at byte");
 }
 
@@ -336,7 +341,7 @@ TEST(HostileCompare, TruncatedReportIsRefused) {
   const std::string json = reportJson();
   writeText(dir / "cut.json", json.substr(0, json.size() / 2));
   writeText(dir / "good.json", reportJson());
-  expectRefused(crfcal("compare " + quoted(dir / "cut.json") + " " + quoted(dir / "good.json")), 1,
+  expectRefused(command("compare " + quoted(dir / "cut.json") + " " + quoted(dir / "good.json")), 1,
                 "cut.json: invalid JSON");
 }
 
@@ -354,7 +359,7 @@ TEST(HostileCompare, AlignedToleranceDoesNotPassACurveThatIsZeroOnTheCoveredRang
   jb["covered_range"] = {{"G", {0.0, 0.5}}};
   writeText(dir / "a.json", ja.dump());
   writeText(dir / "b.json", jb.dump());
-  const auto result = crfcal::test::run(crfcal("compare " + quoted(dir / "a.json") + " " + quoted(dir / "b.json") +
+  const auto result = crfcal::test::run(command("compare " + quoted(dir / "a.json") + " " + quoted(dir / "b.json") +
                                                " --tolerance 0.01 --tolerance-range aligned"));
   EXPECT_EQ(result.exit_code, 3) << result.output;
 }
@@ -363,7 +368,7 @@ TEST(HostileCompare, DirectoryGivenAsReportIsRefused) {
   TempDir dir;
   fs::create_directory(dir / "report.json");
   writeText(dir / "good.json", reportJson());
-  expectRefused(crfcal("compare " + quoted(dir / "report.json") + " " + quoted(dir / "good.json")), 1,
+  expectRefused(command("compare " + quoted(dir / "report.json") + " " + quoted(dir / "good.json")), 1,
                 "report.json: is a directory");
 }
 
@@ -371,7 +376,7 @@ TEST(HostileCompare, EmptyReportFileIsRefused) {
   TempDir dir;
   writeText(dir / "empty.json", "");
   writeText(dir / "good.json", reportJson());
-  expectRefused(crfcal("compare " + quoted(dir / "empty.json") + " " + quoted(dir / "good.json")), 1,
+  expectRefused(command("compare " + quoted(dir / "empty.json") + " " + quoted(dir / "good.json")), 1,
                 "empty.json: invalid JSON");
 }
 
@@ -383,21 +388,21 @@ TEST(HostileExport, NanInReportCurveIsRefused) {
   const auto comma = json.find(',', json.find('[') + 1);
   json.replace(comma + 1, json.find(',', comma + 1) - comma - 1, "NaN");  // not even JSON: NaN is no JSON number
   writeText(dir / "nan.json", json);
-  expectRefused(crfcal("export " + quoted(dir / "nan.json") + " -f csv -o " + quoted(dir / "x.csv")), 1,
+  expectRefused(command("export " + quoted(dir / "nan.json") + " -f csv -o " + quoted(dir / "x.csv")), 1,
                 "nan.json: invalid JSON", dir / "x.csv");
 }
 
 TEST(HostileExport, CurveAsStringsIsRefused) {
   TempDir dir;
   writeText(dir / "strings.json", R"({"inverse_crf": {"G": ["0", "1"]}})");
-  expectRefused(crfcal("export " + quoted(dir / "strings.json") + " -f csv -o " + quoted(dir / "x.csv")), 1,
+  expectRefused(command("export " + quoted(dir / "strings.json") + " -f csv -o " + quoted(dir / "x.csv")), 1,
                 "strings.json: malformed report", dir / "x.csv");
 }
 
 TEST(HostileExport, ReportWithoutCurveIsRefused) {
   TempDir dir;
   writeText(dir / "nocurve.json", R"({"command": "calibrate"})");
-  expectRefused(crfcal("export " + quoted(dir / "nocurve.json") + " -f csv -o " + quoted(dir / "x.csv")), 1,
+  expectRefused(command("export " + quoted(dir / "nocurve.json") + " -f csv -o " + quoted(dir / "x.csv")), 1,
                 "no \"inverse_crf\"", dir / "x.csv");
 }
 
@@ -405,7 +410,7 @@ TEST(HostileExport, OutputInsideAFileIsRefused) {
   TempDir dir;
   writeText(dir / "good.json", reportJson());
   writeText(dir / "plain", "a file, not a directory");
-  const auto result = crfcal::test::run(crfcal("export " + quoted(dir / "good.json") + " -f csv -o " +
+  const auto result = crfcal::test::run(command("export " + quoted(dir / "good.json") + " -f csv -o " +
                                                quoted(dir / "plain" / "x.csv")));
   EXPECT_EQ(result.exit_code, 1) << result.output;
   EXPECT_NE(result.output.find("x.csv"), std::string::npos) << result.output;
@@ -418,7 +423,7 @@ TEST(HostileExport, UnwritableDirectoryIsRefusedWhenNotRoot) {
   fs::create_directory(dir / "ro");
   fs::permissions(dir / "ro", fs::perms::owner_read | fs::perms::owner_exec);
   const auto result =
-      crfcal::test::run(crfcal("export " + quoted(dir / "good.json") + " -f csv -o " + quoted(dir / "ro" / "x.csv")));
+      crfcal::test::run(command("export " + quoted(dir / "good.json") + " -f csv -o " + quoted(dir / "ro" / "x.csv")));
   fs::permissions(dir / "ro", fs::perms::owner_all);
   EXPECT_EQ(result.exit_code, 1) << result.output;
   EXPECT_FALSE(fs::exists(dir / "ro" / "x.csv"));
