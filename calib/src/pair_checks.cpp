@@ -45,6 +45,11 @@ void requireUsableExposure(const cv::Mat& image, const std::string& which, doubl
   cv::meanStdDev(image.reshape(1), mean, stddev);
   if (stddev[0] < options.uniform_stddev * (white - black)) {
     char text[200];
+    if (mean[0] >= black + (1 - options.black_level) * (white - black)) {
+      std::snprintf(text, sizeof text, "the %s image is saturated (uniform at %.0f of %.0f): no edges to use",
+                    which.c_str(), mean[0], white);
+      throw InvalidInput(text);
+    }
     std::snprintf(text, sizeof text, "the %s image is uniform (standard deviation %.3g of %.0f): no edges to use",
                   which.c_str(), stddev[0], white);
     throw InvalidInput(text);
