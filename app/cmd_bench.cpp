@@ -18,6 +18,7 @@
 
 #include "bench_command.hpp"
 #include "command.hpp"
+#include "option_checks.hpp"
 #include "crfcal/blur_model.hpp"
 #include "crfcal/crf_fitter.hpp"
 #include "crfcal/emor.hpp"
@@ -576,8 +577,9 @@ const BenchRegistration synthetic_registration(
                          "Extra ablation variants: seed+denoise seed+debias seed-fixr moments+debias moments+debias+cue "
                          "moments+cue moments+denoise moments-1pos moments-8pos default+true-sigma default-ggcm "
                          "default-emor default-ggcm-nm default-fixr");
-      command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::PositiveNumber);
-      command.add_option("--ratio", args->ratio, "Exposure ratio r of the simulated pairs (seed: 1)")->check(CLI::PositiveNumber);
+      command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::Range(1, kMaxThreads));
+      command.add_option("--ratio", args->ratio, "Exposure ratio r of the simulated pairs (seed: 1)")
+          ->check(exposureRatioOption(false));
       command.add_flag("!--no-timing", args->timing, "Skip the speed measurements");
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] {

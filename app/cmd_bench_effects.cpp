@@ -23,6 +23,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "option_checks.hpp"
 #include "crfcal/effect_planting.hpp"
 #include "crfcal/effects.hpp"
 #include "crfcal/error.hpp"
@@ -359,7 +360,7 @@ const BenchRegistration registration(
       command.add_option("--json", args->json, "Write the per-case results here ({\"cases\": [...]})");
       command.add_flag("--force", args->force, kForceHelp);
       command.add_flag("-v,--verbose", args->verbose, "Print every case's effect table");
-      command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::PositiveNumber);
+      command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::Range(1, kMaxThreads));
       return [args] { return runEffects(*args); };
     });
 

@@ -22,6 +22,7 @@
 
 #include "bench_command.hpp"
 #include "crfcal/curve_comparison.hpp"
+#include "option_checks.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/handheld_simulation.hpp"
 #include "crfcal/io/atomic_output.hpp"
@@ -386,7 +387,7 @@ const BenchRegistration registration(
       command.add_option("--kernel", args->kernels, "True kernel(s): levin:N | box:L | FILE")->capture_default_str();
       command.add_option("--ratio", args->ratios, "True exposure ratio(s) r (r > 2: the real regime unless --regime says otherwise)")
           ->capture_default_str()
-          ->check(CLI::PositiveNumber);
+          ->check(exposureRatioOption(false));
       command.add_option("--exif-error", args->exif_error, "Relative error of the EXIF ratio against the truth")
           ->capture_default_str();
       command.add_option("--shift", args->shift, "Handheld shift magnitude, pixels (direction varies per case)")
@@ -395,7 +396,9 @@ const BenchRegistration registration(
           ->capture_default_str();
       command.add_option("--quality", args->quality, "JPEG quality")->capture_default_str()->check(CLI::Range(50, 100));
       command.add_option("--max-side", args->max_side, "Downscale the photo to this longest side")->capture_default_str();
-      command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)")->capture_default_str();
+      command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)")
+          ->capture_default_str()
+          ->check(CLI::Range(3, 151) & oddNumber());
       command.add_option("--channels", args->channels, "g or rgb")->capture_default_str()->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--noise-handling", args->noise_handling, "The sharp shot's noise in the fit: jensen, none, debias, denoise")
           ->capture_default_str()

@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "command.hpp"
+#include "option_checks.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/calibration_figures.hpp"
@@ -22,6 +23,7 @@
 #include "crfcal/io/response_io.hpp"
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/pair_calibration.hpp"
+#include "crfcal/pair_checks.hpp"
 #include "crfcal/raw_truth.hpp"
 #include "progress.hpp"
 
@@ -135,6 +137,24 @@ void compareWithTruth(const PairCalibrationResult& result, io::RawTruthReport& t
   }
 }
 
+// Pure image checks (pair_checks.hpp) before any fitting, with the file(s) they concern.
+void requireUsablePair(const io::LoadedPair& pair) {
+  try {
+    requireDistinctImages(pair.sharp.image, pair.blurred.image);
+  } catch (const InvalidInput& e) {
+    throw Error(e.reason(), pair.sharp.path.string() + ", " + pair.blurred.path.string());
+  }
+  PairCheckOptions checks;
+  if (pair.sharp.linear) checks.black_level = 0.002;  // linear RAW: 2/255 of a gamma-encoded scale is far darker
+  for (const io::LoadedImage* shot : {&pair.sharp, &pair.blurred}) {
+    try {
+      requireUsableExposure(shot->image, shot == &pair.sharp ? "sharp" : "blurred", 0, 0, checks);
+    } catch (const InvalidInput& e) {
+      throw Error(e.reason(), shot->path.string());
+    }
+  }
+}
+
 int runCalibrate(const CalibrateArgs& args) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
@@ -152,6 +172,7 @@ int runCalibrate(const CalibrateArgs& args) {
                                    : args.blurred == "second" ? io::BlurredChoice::second
                                                               : io::BlurredChoice::automatic;
   const io::LoadedPair pair = io::loadPair(args.first, args.second, choice, raw);
+  requireUsablePair(pair);
   timings["decode"] = std::chrono::duration<double>(Clock::now() - t).count();
   progress.done(pair.sharp.format + " pair " + std::to_string(pair.blurred.image.cols) + "x" +
                 std::to_string(pair.blurred.image.rows) + "; blurred = " + pair.blurred.path.filename().string() +
@@ -160,8 +181,9 @@ int runCalibrate(const CalibrateArgs& args) {
   // Exposure ratio (footnote 4).
   double nominal_ratio = args.ratio;
   if (pair.exif_ratio) {
-    std::fprintf(stderr, "  exif: sharp %s; blurred %s\n  exif: %s\n", pair.sharp.exposure.summary().c_str(),
-                 pair.blurred.exposure.summary().c_str(), pair.exif_ratio->summary().c_str());
+    if (!args.quiet)
+      std::fprintf(stderr, "  exif: sharp %s; blurred %s\n  exif: %s\n", pair.sharp.exposure.summary().c_str(),
+                   pair.blurred.exposure.summary().c_str(), pair.exif_ratio->summary().c_str());
   }
   if (nominal_ratio <= 0) {
     if (!pair.exif_ratio)
@@ -296,16 +318,19 @@ const CommandRegistration registration(
           ->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--model", args->model, "Model of phi: ggcm (Eq. 19), emor (PCA), auto (cross-validated)")
           ->check(CLI::IsMember({"ggcm", "emor", "auto"}));
-      command.add_option("--ratio", args->ratio, "Exposure ratio r = dt_B/dt_I (default: from EXIF, footnote 4)")
-          ->check(CLI::PositiveNumber);
+      command.add_option("--ratio", args->ratio,
+                         "Exposure ratio r = dt_B/dt_I, 1/1000 .. 1000 (default 0: from EXIF, footnote 4)")
+          ->check(exposureRatioOption());
       command.add_option("--kernel-size", args->kernel_size, "Largest kernel extent, odd (blur + residual shift)")
-          ->check(CLI::Range(3, 151));
+          ->check(CLI::Range(3, 151) & oddNumber());
       command.add_option("--kernel", args->kernel_file, "Use this kernel (text matrix or image) instead of estimating")
           ->check(CLI::ExistingFile);
       command.add_option("--rounds", args->rounds, "Kernel <-> phi rounds after the first fit")->check(CLI::Range(0, 10));
       command.add_option("--blurred", args->blurred, "Which argument is the blurred shot: auto, first, second")
           ->check(CLI::IsMember({"auto", "first", "second"}));
-      command.add_option("--threads", args->threads, "Worker threads (0: all cores)")->check(CLI::NonNegativeNumber);
+      command.add_option("--threads", args->threads, "Worker threads, 0 .. " + std::to_string(kMaxThreads) +
+                                                         " (0: all cores)")
+          ->check(CLI::Range(0, kMaxThreads));
       command.add_flag("--no-white-balance", args->no_white_balance, "RAW: no white balance (sensor RGB)");
       command.add_flag("--no-register", args->no_register, "The pair is already aligned (skip registration)");
       command.add_flag("--fix-ratio", args->fix_ratio,
@@ -346,10 +371,7 @@ const CommandRegistration registration(
           ->check(CLI::IsMember({"auto", "sharp", "blurred"}))
           ->needs(raw_truth);
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
-      return [args] {
-        if (args->kernel_size % 2 == 0) throw InvalidInput("--kernel-size must be odd");
-        return runCalibrate(*args);
-      };
+      return [args] { return runCalibrate(*args); };
     });
 
 }  // namespace

@@ -46,12 +46,52 @@ std::vector<double> parseList(const std::string& text, const std::string& what) 
   std::string item;
   while (std::getline(stream, item, ',')) {
     try {
-      values.push_back(std::stod(item));
+      size_t used = 0;
+      values.push_back(std::stod(item, &used));
+      if (used != item.size()) throw std::invalid_argument(item);
     } catch (const std::exception&) {
       throw InvalidInput(what + ": '" + item + "' is not a number");
     }
   }
   return values;
+}
+
+// --exposures: relative exposures (ISO·t/N² up to a common factor), one per IMAGE in the same order. Each must be
+// positive and finite: a bad value used to turn every shot into a free scale silently.
+std::vector<double> parseExposures(const std::string& text, size_t images) {
+  const std::vector<double> exposures = parseList(text, "--exposures");
+  if (exposures.size() != images)
+    throw InvalidInput("--exposures needs one value per IMAGE (" + std::to_string(images) + ", got " +
+                       std::to_string(exposures.size()) + ")");
+  for (const double e : exposures)
+    if (!(std::isfinite(e) && e > 0))
+      throw InvalidInput("--exposures: " + text + ": every exposure must be a positive finite number");
+  return exposures;
+}
+
+// The exposures pair with the images in the order given; the order itself does not matter. But a shot given more
+// exposure than another must not be darker on the patches both measure: reversed values (8,4,2,1 for shots taken
+// 1,2,4,8) fitted with an RMSE of 0.24–0.30 instead of being refused. The test is the majority of common usable
+// patches (green channel), so that noise on one patch cannot trip it.
+void requireExposuresFollowBrightness(const std::vector<ChartShot>& shots, const std::vector<std::string>& names) {
+  for (size_t i = 0; i < shots.size(); ++i)
+    for (size_t j = 0; j < shots.size(); ++j) {
+      if (!(shots[i].exposure > 1.05 * shots[j].exposure)) continue;
+      int common = 0, darker = 0;
+      for (size_t p = 0; p < shots[i].measured.size() && p < shots[j].measured.size(); ++p) {
+        const chart::PatchStats &a = shots[i].measured[p], &b = shots[j].measured[p];
+        if (!a.usable() || !b.usable()) continue;
+        ++common;
+        darker += a.median[1] < b.median[1];
+      }
+      if (common >= 3 && 2 * darker > common)
+      {
+        char text[200];
+        std::snprintf(text, sizeof text, " is given %.3gx the exposure of %s but is darker on %d of %d patches: ",
+                      shots[i].exposure / shots[j].exposure, names[j].c_str(), darker, common);
+        throw InvalidInput("--exposures: " + names[i] + text + "the values must follow the order of the images");
+      }
+    }
 }
 
 int runChart(ChartArgs args) {
@@ -61,6 +101,9 @@ int runChart(ChartArgs args) {
   if (!args.corners.empty() && args.corners.size() != 1 && args.corners.size() != args.images.size())
     throw InvalidInput("--corners: give one set for all images or one per image");
   const io::ChartLayout layout = io::parseChartLayout(args.layout);
+  // A bad --truth (NaN, decreasing, not a curve) is refused before the calibration, not after it; the same reader
+  // and validation as every other curve (io::readCurveTable, checkInverseSamples).
+  if (!args.truth.empty()) io::readCurveTable(args.truth, args.channels.find('G') != std::string::npos ? "G" : "R");
   ChartCalibrationOptions options = args.options;
   options.use_raw = !args.raws.empty();
   options.raw_neutral_only = args.patches == "neutral";
@@ -74,8 +117,7 @@ int runChart(ChartArgs args) {
   }
   std::vector<double> exposures;
   if (!args.exposures.empty()) {
-    exposures = parseList(args.exposures, "--exposures");
-    if (exposures.size() != args.images.size()) throw InvalidInput("--exposures needs one value per IMAGE");
+    exposures = parseExposures(args.exposures, args.images.size());
   }
 
   // Decided before the computation: a refused or unwritable output directory fails at once.
@@ -140,6 +182,7 @@ int runChart(ChartArgs args) {
     shots.push_back(std::move(shot));
     progress.update(double(i + 1) / double(args.images.size()), loaded.how);
   }
+  if (!exposures.empty()) requireExposuresFollowBrightness(shots, args.images);
   progress.done();
   const double sample_seconds = seconds(start);
 

@@ -4,6 +4,7 @@
 #include <nlohmann/json.hpp>
 
 #include "command.hpp"
+#include "option_checks.hpp"
 #include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
@@ -81,8 +82,8 @@ const CommandRegistration registration(
       command.add_option("--crf", args->crf,
                          "Inverse response phi: gamma:G | ggcm:a0,a1,... | emor:c1,c2,... | table:FILE");
       command.add_option("--kernel", args->kernel, "Blur kernel: levin:1..8 | box:L | FILE (text matrix or image)");
-      command.add_option("--ratio", args->options.ratio, "Exposure ratio r = dt_B/dt_I (Eq. 4)")
-          ->check(CLI::PositiveNumber);
+      command.add_option("--ratio", args->options.ratio, "Exposure ratio r = dt_B/dt_I (Eq. 4), 0.001 .. 1000")
+          ->check(exposureRatioOption(false));
       command.add_option("--noise-var", args->options.noise_variance,
                          "Variance of Gaussian noise added to the sharp image, intensities in [0,1] (Sec. 5)")
           ->check(CLI::Range(0.0, 1.0));

@@ -99,7 +99,8 @@ ChannelComparison compareCurves(const std::vector<double>& a, const std::vector<
   result.rmse_covered = covered.rmse;
   result.max_error_covered = covered.max_error;
   result.samples_covered = covered.count;
-  // Least-squares factor a of φ_A ≈ a·φ_B on the same grid, then the RMSE of the difference.
+  // Least-squares factor a of φ_A ≈ a·φ_B on the same grid (bounded: kMinAlignmentScale), then the RMSE of the
+  // difference.
   double ab = 0, bb = 0;
   for (int i = 0; i < n; ++i) {
     const double x = n == 1 ? result.covered.first
@@ -109,7 +110,9 @@ ChannelComparison compareCurves(const std::vector<double>& a, const std::vector<
     ab += va * vb;
     bb += vb * vb;
   }
-  result.scale_covered = bb > 0 ? ab / bb : 1.0;
+  // The error is a convex quadratic in a: the best factor within the bounds is the unconstrained one, clamped.
+  result.scale_covered = std::clamp(bb > 0 && std::isfinite(ab / bb) ? ab / bb : 1.0, kMinAlignmentScale,
+                                    kMaxAlignmentScale);
   std::vector<double> scaled(b);
   for (double& v : scaled) v *= result.scale_covered;
   result.rmse_covered_aligned = errorsOn(a, scaled, result.covered.first, result.covered.second, n).rmse;

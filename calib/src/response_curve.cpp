@@ -19,6 +19,11 @@ std::vector<double> lut(int bits, auto&& function) {
 
 }  // namespace
 
+ModelValidity checkInverseSamples(const std::vector<double>& phi) {
+  if (phi.size() < 2) return {false, "a response curve needs at least 2 samples"};
+  return checkValidity(TableModel{phi}, static_cast<int>(phi.size()), 1e-6);
+}
+
 ResponseCurve::ResponseCurve() : ResponseCurve(std::vector<double>{0.0, 1.0}) {}
 
 ResponseCurve::ResponseCurve(const ResponseModel& model, int nodes) {
@@ -35,8 +40,7 @@ ResponseCurve::ResponseCurve(const ResponseModel& model, int nodes) {
 ResponseCurve::ResponseCurve(std::vector<double> phi) : phi_(std::move(phi)) { build(); }
 
 ResponseCurve ResponseCurve::fromSamples(std::vector<double> phi) {
-  if (phi.size() < 2) throw InvalidInput("a response curve needs at least 2 samples");
-  if (auto validity = checkValidity(TableModel{phi}, static_cast<int>(phi.size()), 1e-6); !validity)
+  if (auto validity = checkInverseSamples(phi); !validity)
     throw InvalidInput("invalid response curve: " + validity.reason);
   for (size_t i = 1; i < phi.size(); ++i) phi[i] = std::max(phi[i], phi[i - 1]);
   phi.front() = 0.0;

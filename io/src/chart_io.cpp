@@ -52,6 +52,15 @@ LoadedChart loadChart(const fs::path& path, ChartLayout layout, const std::optio
   }
   const double aspect = double(image.cols) / image.rows;
   if (corners) {
+    // Corners outside the image would rectify padding into patches (exit 0 with nonsense before this check).
+    for (const cv::Point2f& corner : *corners)
+      if (!(corner.x >= 0 && corner.y >= 0 && corner.x <= image.cols && corner.y <= image.rows))
+      {
+        char text[160];
+        std::snprintf(text, sizeof text, "--corners: (%g, %g) lies outside the image (%dx%d)", corner.x, corner.y,
+                      image.cols, image.rows);
+        throw Error(text, path.string());
+      }
     loaded.corners = *corners;
     loaded.how = "corners";
   } else if (layout == ChartLayout::Rectified ||

@@ -1,5 +1,7 @@
 #include "crfcal/io/image_io.hpp"
 
+#include <algorithm>
+#include <cstdint>
 #include <fstream>
 #include <iterator>
 #include <vector>
@@ -11,11 +13,32 @@
 #include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/jpeg_info.hpp"
 
 namespace crfcal::io {
 namespace fs = std::filesystem;
 
 namespace {
+
+std::uint32_t bigEndian32(const uchar* p) {
+  return (std::uint32_t{p[0]} << 24) | (std::uint32_t{p[1]} << 16) | (std::uint32_t{p[2]} << 8) | p[3];
+}
+
+// A PNG's IHDR gives its size before anything is decoded: refuse a forged header claiming billions of pixels with one
+// line instead of OpenCV's two-line size assertion (JPEG: requireCompleteJpeg; other formats: the decoder's message).
+void requireDecodableSize(const std::vector<uchar>& bytes, const fs::path& path) {
+  static const uchar kPngIhdr[] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n', 0, 0, 0, 13, 'I', 'H', 'D', 'R'};
+  if (bytes.size() < 24 || !std::equal(std::begin(kPngIhdr), std::end(kPngIhdr), bytes.begin())) return;
+  const std::uint32_t width = bigEndian32(&bytes[16]), height = bigEndian32(&bytes[20]);
+  if (static_cast<double>(width) * height > kMaxImagePixels)
+    throw Error("image too large (" + std::to_string(width) + "x" + std::to_string(height) + "; at most " +
+                    std::to_string(kMaxImagePixels / 1000000) + " megapixels)",
+                path.string());
+}
+
+// The first line of an OpenCV error, without its source file and line: one line naming our file is the rule.
+std::string firstLine(const std::string& text) { return text.substr(0, text.find('\n')); }
+
 
 // The file's bytes decoded with OpenCV's `flags`; every failure names the file.
 cv::Mat decodeFile(const fs::path& path, int flags) {
@@ -26,11 +49,13 @@ cv::Mat decodeFile(const fs::path& path, int flags) {
   if (!in) throw Error("cannot open (permission denied?)", path.string());
   std::vector<uchar> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   if (bytes.empty()) throw Error("file is empty", path.string());
+  if (bytes.size() >= 2 && bytes[0] == 0xFF && bytes[1] == 0xD8) requireCompleteJpeg(bytes.data(), bytes.size(), path);
+  requireDecodableSize(bytes, path);
   cv::Mat image;
   try {
     image = cv::imdecode(bytes, flags);
   } catch (const cv::Exception& e) {
-    throw Error("cannot decode image: " + e.msg, path.string());
+    throw Error("cannot decode image: " + firstLine(e.err), path.string());
   }
   if (image.empty()) throw Error("not a readable image (corrupt or unsupported format)", path.string());
   return image;

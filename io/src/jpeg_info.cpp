@@ -5,6 +5,8 @@
 #include <memory>
 
 #include <jpeglib.h>
+// after jpeglib.h, which it needs
+#include <jerror.h>
 
 #include "crfcal/error.hpp"
 
@@ -15,12 +17,20 @@ struct ErrorManager {
   jpeg_error_mgr base;
   std::jmp_buf jump;
   char message[JMSG_LENGTH_MAX] = {};
+  bool premature_end = false;
 };
 
 void onError(j_common_ptr info) {
   auto* manager = reinterpret_cast<ErrorManager*>(info->err);
   info->err->format_message(info, manager->message);
   std::longjmp(manager->jump, 1);
+}
+
+// libjpeg reports a stream that ends before the last scanline as a warning (JWRN_JPEG_EOF) and pads the rest with
+// grey; remember it so that the caller can refuse the file.
+void onMessage(j_common_ptr info, int level) {
+  auto* manager = reinterpret_cast<ErrorManager*>(info->err);
+  if (level < 0 && info->err->msg_code == JWRN_JPEG_EOF) manager->premature_end = true;
 }
 
 std::string describe(int components, int h, int v) {
@@ -64,6 +74,41 @@ JpegInfo readJpegInfo(const std::filesystem::path& path) {
   jpeg_destroy_decompress(&info);
   out.subsampling = describe(out.components, out.luma_h, out.luma_v);
   return out;
+}
+
+void requireCompleteJpeg(const unsigned char* data, std::size_t size, const std::filesystem::path& path) {
+  jpeg_decompress_struct info{};
+  ErrorManager manager;
+  info.err = jpeg_std_error(&manager.base);
+  manager.base.error_exit = onError;
+  manager.base.emit_message = onMessage;
+  // No C++ objects with destructors are created between setjmp and a possible longjmp.
+  if (setjmp(manager.jump)) {
+    jpeg_destroy_decompress(&info);
+    throw Error(std::string("corrupt JPEG (") + manager.message + ")", path.string());
+  }
+  jpeg_create_decompress(&info);
+  jpeg_mem_src(&info, const_cast<unsigned char*>(data), static_cast<unsigned long>(size));
+  jpeg_read_header(&info, TRUE);
+  const double pixels = static_cast<double>(info.image_width) * info.image_height;
+  if (pixels > kMaxImagePixels) {
+    const std::string size = std::to_string(info.image_width) + "x" + std::to_string(info.image_height);
+    jpeg_destroy_decompress(&info);
+    throw Error("image too large (" + size + "; at most " + std::to_string(kMaxImagePixels / 1000000) +
+                " megapixels)", path.string());
+  }
+  info.scale_num = 1;
+  info.scale_denom = 8;  // the whole stream is still entropy-decoded, only the inverse DCT is reduced
+  info.dct_method = JDCT_IFAST;
+  jpeg_start_decompress(&info);
+  // the row buffer comes from libjpeg's own pool: freed by jpeg_destroy_decompress, also after a longjmp
+  JSAMPARRAY rows = (*info.mem->alloc_sarray)(reinterpret_cast<j_common_ptr>(&info), JPOOL_IMAGE,
+                                              info.output_width * info.output_components, 1);
+  while (info.output_scanline < info.output_height && !manager.premature_end) jpeg_read_scanlines(&info, rows, 1);
+  const bool truncated = manager.premature_end;
+  jpeg_abort_decompress(&info);
+  jpeg_destroy_decompress(&info);
+  if (truncated) throw Error("truncated JPEG (premature end of data)", path.string());
 }
 
 }  // namespace crfcal::io

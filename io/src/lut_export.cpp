@@ -210,7 +210,10 @@ std::string renderClf(const ExportCurves& curves, const LutExportOptions& option
 std::string renderOpenCv(const ExportCurves& curves, const LutExportOptions& options, int size, LutExportResult& info,
                          const std::filesystem::path& file) {
   auto values = nodeValues(curves, options, size);  // R, G, B
-  // MergeDebevec takes log(response): raise entries ≤ 0 to the channel's smallest positive entry.
+  // Row i is the response for pixel value i. MergeDebevec takes log(response) and gives pixel value 0 a non-zero
+  // (triangle) weight, so φ(0) = 0 would make every pixel that is 0 in any shot log(0) = −inf: raise entries ≤ 0 to
+  // the channel's smallest positive entry — row 0 = φ(1/255), exactly what OpenCV does to its own default linear
+  // response (modules/photo/src/merge.cpp: response.at<Vec3f>(0) = response.at<Vec3f>(1)). Rows 1..255 are φ(i/255).
   for (auto& v : values) {
     double floor = std::numeric_limits<double>::infinity();
     for (double e : v)

@@ -6,6 +6,8 @@
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/response_io.hpp"
+#include "crfcal/response_curve.hpp"
+#include "json_error.hpp"
 
 #ifndef CRFCAL_VERSION
 #define CRFCAL_VERSION "0.1.0"
@@ -77,8 +79,10 @@ CalibrationReport CalibrationReport::fromJson(const nlohmann::json& json, const 
     } else {
       throw Error("\"inverse_crf\" must be a list or an object of channels", source);
     }
+    // The same validation as every other reader of curves (response_curve.hpp): what compare accepts, export accepts.
     for (const auto& [channel, samples] : report.inverse_crf)
-      if (samples.size() < 2) throw Error("\"inverse_crf\"." + channel + " has fewer than 2 samples", source);
+      if (const ModelValidity validity = checkInverseSamples(samples); !validity)
+        throw Error("\"inverse_crf\"." + channel + " is not a valid inverse response: " + validity.reason, source);
     if (json.contains("models") && json["models"].is_object()) {
       for (const auto& [channel, model] : json["models"].items()) {
         try {
@@ -120,19 +124,21 @@ CalibrationReport CalibrationReport::fromJson(const nlohmann::json& json, const 
                             "effects", "warnings", "crfcal_version", "command", "inverse_crf_x"})
       report.extra.erase(key);
   } catch (const nlohmann::json::exception& e) {
-    throw Error(std::string("malformed report: ") + e.what(), source);
+    throw Error("malformed report: " + describeJsonError(e), source);
   }
   return report;
 }
 
 CalibrationReport readReport(const std::filesystem::path& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) throw Error("is a directory, not a report", path.string());
   std::ifstream in(path);
-  if (!in) throw Error(std::filesystem::exists(path) ? "cannot open" : "file not found", path.string());
+  if (!in) throw Error(std::filesystem::exists(path, ec) ? "cannot open" : "file not found", path.string());
   nlohmann::json json;
   try {
     in >> json;
   } catch (const nlohmann::json::exception& e) {
-    throw Error(std::string("invalid JSON: ") + e.what(), path.string());
+    throw Error(describeJsonError(e), path.string());
   }
   return CalibrationReport::fromJson(json, path.string());
 }

@@ -12,6 +12,13 @@
 
 namespace crfcal {
 
+// Bounds of the factor a of the aligned comparison (φ_A ≈ a·φ_B on the covered range). The factor exists to forgive
+// a different normalisation: φ(1) = 1 is pinned by extrapolation when the data stop below x = 1, and a response
+// and the same response seen one exposure stop off differ by a factor 2. Anything beyond one stop either way is not
+// "the same curve up to its normalisation" — and an unbounded factor of 0 made a curve that is 0 on the covered
+// range "equal" to any other (RMSE 0 against 0·φ_B).
+inline constexpr double kMinAlignmentScale = 0.5, kMaxAlignmentScale = 2.0;
+
 using IntensityRange = std::pair<double, double>;  // [lo, hi] ⊂ [0,1]
 
 struct CurveComparisonOptions {
@@ -35,7 +42,7 @@ struct ChannelComparison {
   // Shape difference over the covered range, free of the normalisation φ(1) = 1 (which rests on each curve's
   // extrapolation above its data when the top of the range is not observed): RMSE of φ_A − a·φ_B with the
   // least-squares factor a over the covered range.
-  double scale_covered = 1;          // a
+  double scale_covered = 1;          // a, least squares within [kMinAlignmentScale, kMaxAlignmentScale]
   double rmse_covered_aligned = 0;
 };
 

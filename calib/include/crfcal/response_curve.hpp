@@ -12,6 +12,12 @@
 
 namespace crfcal {
 
+// The one validation of a tabulated φ, whatever it comes from (report.json, `table:` files, chart --truth, export,
+// fitted curves): at least 2 samples, all finite, φ(0) = 0 and φ(1) = 1, non-decreasing — each within 1e-6, the
+// rounding of the 17-digit values crfcal writes. What ResponseCurve::fromSamples accepts; readers call it so that a
+// curve one command accepts is never rejected by another.
+ModelValidity checkInverseSamples(const std::vector<double>& phi);
+
 class ResponseCurve {
  public:
   // Default grid: 16385 nodes, interpolation error < 1e-8 for the curves of real cameras.
@@ -20,7 +26,7 @@ class ResponseCurve {
   ResponseCurve();  // the identity φ(x) = x
   // Tabulates `model` (which must be valid: throws InvalidInput with the reason otherwise).
   explicit ResponseCurve(const ResponseModel& model, int nodes = kDefaultNodes);
-  // From samples φ(i/(n−1)); must be non-decreasing with φ(0)=0, φ(1)=1 (throws InvalidInput).
+  // From samples φ(i/(n−1)); must pass checkInverseSamples (throws InvalidInput with its reason).
   static ResponseCurve fromSamples(std::vector<double> phi);
 
   double inverse(double x) const;  // φ(x), x clamped to [0,1]

@@ -4,6 +4,7 @@
 // rebuilds R and B from full-resolution luma plus chroma averaged over 2×2 (or 2×1) pixels of the gamma-encoded
 // image, so at edges — exactly where the seed's method takes its information — R and B mix with their neighbours
 // after the tone curve. crfcal reports it and warns (docs/RESULTS.md#calibrate, "chroma subsampling").
+#include <cstddef>
 #include <filesystem>
 #include <string>
 
@@ -18,5 +19,15 @@ struct JpegInfo {
 
 // Reads the frame header. Throws crfcal::Error naming the file when it is not a readable JPEG.
 JpegInfo readJpegInfo(const std::filesystem::path& path);
+
+// The largest image crfcal decodes (pixels): far above any camera sensor (≤ 400 MP), below OpenCV's own limit
+// (2^30) whose assertion would otherwise be the message, and a bound on the memory a forged header can claim.
+constexpr std::size_t kMaxImagePixels = 500'000'000;
+
+// Decodes the whole entropy-coded stream of an in-memory JPEG (libjpeg, at 1/8 scale: DC coefficients only, fast)
+// and throws crfcal::Error naming `path` when its header claims more than kMaxImagePixels or when it ends early: "truncated JPEG (premature end of data)". OpenCV's
+// decoder only warns about it (libjpeg's JWRN_JPEG_EOF) and fills the missing rows with grey, which would silently
+// enter the fit as real pixels.
+void requireCompleteJpeg(const unsigned char* data, std::size_t size, const std::filesystem::path& path);
 
 }  // namespace crfcal::io

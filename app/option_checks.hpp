@@ -1,0 +1,45 @@
+#pragma once
+// Command-line checks shared by several commands (CLI11 validators): a value outside them is a command-line error,
+// exit 2 with the valid range, before anything is read or computed.
+#include <cmath>
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+namespace crfcal::app {
+
+// --threads: far above any machine crfcal runs on, and below what TBB's allocator survives (100000 threads
+// crashed it after the outputs were written).
+inline constexpr int kMaxThreads = 256;
+
+// Exposure ratios r = Δt_B/Δt_I: 1/1000 .. 1000 (ten stops either way and more). Beyond, the blurred shot is
+// clipped or black wherever the sharp one has data, and the fit's energies overflow (r = 1e9 gave 1e17).
+inline constexpr double kMinExposureRatio = 1e-3, kMaxExposureRatio = 1e3;
+
+inline bool isExposureRatio(double r) { return std::isfinite(r) && r >= kMinExposureRatio && r <= kMaxExposureRatio; }
+
+// r in [1/1000, 1000]; with `zero_means_exif`, also 0 (the default: r from the EXIF).
+inline CLI::Validator exposureRatioOption(bool zero_means_exif = true) {
+  return CLI::Validator(
+      [zero_means_exif](std::string& text) -> std::string {
+        double r = 0;
+        if (!CLI::detail::lexical_cast(text, r)) return "'" + text + "' is not a number";
+        if ((zero_means_exif && r == 0) || isExposureRatio(r)) return {};
+        return "exposure ratio " + text + " is outside 0.001 .. 1000" +
+               std::string(zero_means_exif ? " (or 0: from EXIF)" : "");
+      },
+      zero_means_exif ? "0|0.001..1000" : "0.001..1000");
+}
+
+// An odd integer (kernel sizes: the kernel has a centre pixel).
+inline CLI::Validator oddNumber() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        long long n = 0;
+        if (!CLI::detail::lexical_cast(text, n)) return "'" + text + "' is not an integer";
+        return n % 2 != 0 ? std::string() : "must be odd (got " + text + ")";
+      },
+      "ODD");
+}
+
+}  // namespace crfcal::app
