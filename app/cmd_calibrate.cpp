@@ -240,12 +240,11 @@ int runCalibrate(const CalibrateArgs& args) {
       return calibratePair(pair.sharp.image, pair.blurred.image, options);
     } catch (const InvalidInput& e) {
       if (!e.file().empty()) throw;
-      const std::string& reason = e.reason();
-      const std::string file = reason.find("blurred image") != std::string::npos ? pair.blurred.path.string()
-                               : reason.find("sharp image") != std::string::npos
+      const std::string file = e.subject() == ErrorSubject::blurred_image ? pair.blurred.path.string()
+                               : e.subject() == ErrorSubject::sharp_image
                                    ? pair.sharp.path.string()
                                    : pair.sharp.path.string() + ", " + pair.blurred.path.string();
-      throw InvalidInput(reason, file);
+      throw InvalidInput(e.reason(), e.subject(), file);
     }
   }();
   if (!current.empty()) progress.done();

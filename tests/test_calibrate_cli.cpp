@@ -264,6 +264,39 @@ TEST(CalibrateCli, NonOverlappingPair) {
   expectCleanFailure(r, dir / "out", "does not overlap");
 }
 
+// Two unrelated scenes: refused as such after the alignment (issue 15), not sent on to a kernel that grows to its
+// size limit. --no-register: Levin's images do not even register, and the test must reach the scene check.
+TEST(CalibrateCli, DifferentScenesAreRefused) {
+  test::TempDir dir;
+  cv::Mat blurred;
+  cv::filter2D(test::levinImage(3), blurred, -1, test::levinKernel(2), cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
+  writeShot(dir / "a.jpg", test::levinImage(1) * 255, 800, 0.01);
+  writeShot(dir / "b.jpg", blurred * 255, 100, 0.08);
+  const auto r = test::run(bin() + " calibrate " + (dir / "a.jpg").string() + " " + (dir / "b.jpg").string() +
+                           " --no-register -o " + (dir / "out").string());
+  expectCleanFailure(r, dir / "out", "the two images do not show the same scene");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  // A pair problem names both files.
+  EXPECT_NE(r.output.find((dir / "a.jpg").string() + ", " + (dir / "b.jpg").string() + ":"), std::string::npos)
+      << r.output;
+}
+
+// The same scene, blurred: the same-scene correlation stays far above its threshold (the refusal above is not a
+// refusal of every --no-register pair).
+TEST(CalibratePairChecks, SameSceneBlurredPasses) {
+  cv::Mat blurred;
+  cv::filter2D(test::levinImage(1), blurred, -1, test::levinKernel(2), cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
+  cv::Mat sharp8, blurred8;
+  test::levinImage(1).convertTo(sharp8, CV_8U, 255);
+  blurred.convertTo(blurred8, CV_8U, 255);
+  PairCalibrationOptions options;
+  options.register_pair = false;
+  options.rgb = false;
+  options.rounds = 0;
+  options.effects.enabled = false;
+  EXPECT_NO_THROW(calibratePair(sharp8, blurred8, options));
+}
+
 TEST(CalibrateCli, EdgelessPair) {
   test::TempDir dir;
   cv::Mat flat(200, 200, CV_8UC3, cv::Scalar(120, 120, 120));
@@ -287,6 +320,17 @@ TEST(CalibrateCli, SaturatedFrames) {
   const auto r = test::run(bin() + " calibrate " + (dir / "a.jpg").string() + " " + (dir / "b.jpg").string() +
                            " -o " + (dir / "out").string());
   expectCleanFailure(r, dir / "out", "saturated");
+}
+
+// The typed error subject: a saturated blurred shot is blamed on its own file, not on the pair.
+TEST(CalibrateCli, SaturatedBlurredShotNamesItsFile) {
+  test::TempDir dir;
+  const cv::Mat white(test::levinImage(1).size(), CV_8U, cv::Scalar(255));
+  writeShot(dir / "a.jpg", test::levinImage(1) * 255, 800, 0.01);
+  writeShot(dir / "b.jpg", white, 100, 0.08);
+  const auto r = test::run(bin() + " calibrate " + (dir / "a.jpg").string() + " " + (dir / "b.jpg").string() +
+                           " -o " + (dir / "out").string());
+  expectCleanFailure(r, dir / "out", "crfcal: error: " + (dir / "b.jpg").string() + ": saturated frame");
 }
 
 TEST(CalibrateCli, KernelHitsSizeLimit) {
@@ -486,7 +530,7 @@ TEST(CalibrateSmallBlur, RatioIsHeldAtExifUnlessAlwaysFitted) {
   options.fit.nominal_ratio = 2.1;  // EXIF 5 % off
   const PairCalibrationResult held = calibratePair(sharp, blurred, options);
   EXPECT_TRUE(held.ratio_fixed_by_small_blur);
-  EXPECT_GT(std::abs(held.ratio_images_small_blur / 2.1 - 1), options.effects.ratio_tolerance);
+  EXPECT_GT(std::abs(held.ratio_images_small_blur / 2.1 - 1), options.small_blur_ratio_tolerance);
   EXPECT_DOUBLE_EQ(held.fits.at("G").ratio, 2.1);
   bool warned = false;
   for (const auto& w : held.warnings) warned |= w.find("held at 2.1") != std::string::npos;

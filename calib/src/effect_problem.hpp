@@ -26,24 +26,16 @@
 #include "crfcal/effects.hpp"
 #include "crfcal/noise_debias.hpp"
 #include "crfcal/response_curve.hpp"
+#include "image_units.hpp"
 
 namespace crfcal::effect {
 
 // ---- small helpers ------------------------------------------------------------------------------------------------
 
-inline double fullScale(const cv::Mat& m) { return m.depth() == CV_16U ? 65535.0 : m.depth() == CV_8U ? 255.0 : 1.0; }
-
-inline cv::Mat unit(const cv::Mat& m) {
-  cv::Mat out;
-  m.convertTo(out, CV_64F, 1.0 / fullScale(m));
-  return out;
-}
-
-inline cv::Mat dilateBy(const cv::Mat& mask, int n) {
-  cv::Mat out;
-  cv::dilate(mask, out, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(n, n)));
-  return out;
-}
+// Pixel units and mask dilation: one home for the whole calibration (image_units.hpp).
+using detail::dilateBy;
+using detail::fullScale;
+using detail::unit;
 
 // Back to the input's storage (so that the refit sees the same level grid as the base fit).
 cv::Mat store(const cv::Mat& unit_image, int depth);

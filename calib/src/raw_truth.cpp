@@ -14,17 +14,12 @@
 #include <opencv2/imgproc.hpp>
 
 #include "crfcal/error.hpp"
+#include "image_units.hpp"
 
 namespace crfcal {
 namespace {
 
-double fullScale(const cv::Mat& m) {
-  switch (m.depth()) {
-    case CV_8U: return 255.0;
-    case CV_16U: return 65535.0;
-    default: return 1.0;
-  }
-}
+using detail::fullScale;
 
 // Planes in R, G, B order (one plane for grey), CV_32F in [0,1] of full scale.
 std::vector<cv::Mat> unitPlanes(const cv::Mat& image) {

@@ -1,12 +1,13 @@
 #pragma once
-// The whole dual-image calibration of Sec. 4 on a real (handheld) pair:
-//   saturation check → registration (registration.hpp; the blurred shot is resampled into the sharp frame, the
-//   noisy sharp shot is never resampled) → edge-rich tiles (tile_selection.hpp) →
-//   kernel estimation (kernel_estimation.hpp) in an approximately linear domain (the sharp image's histogram
-//   matched to the blurred one's: a monotone map that removes most of the exposure and tone difference) →
-//   kernel-aware registration refinement (ECC of I ⊗ K against B) and the kernel again →
-//   φ fit per channel (crf_fitter.hpp, Eq. 21–25) → `rounds` × { kernel re-estimated in the irradiance domain
-//   φ(I), φ(B) with the current φ_G; φ refitted } with the change per round reported.
+// The whole dual-image calibration of Sec. 4 on a real (handheld) pair, as named stages (docs/ARCHITECTURE.md):
+//   checks (sizes, saturated frames, edges) → align: registration (registration.hpp; the blurred shot is resampled
+//   into the sharp frame, the noisy sharp shot is never resampled), the test that both shots show one scene,
+//   edge-rich tiles (tile_selection.hpp) → kernel: estimation (kernel_estimation.hpp) in an approximately linear
+//   domain (the sharp image's histogram matched to the blurred one's: a monotone map that removes most of the
+//   exposure and tone difference), kernel-aware registration refinement (ECC of I ⊗ K against B) and the kernel
+//   again → fit window → φ fit per channel (crf_fitter.hpp, Eq. 21–25) and `rounds` × { kernel re-estimated in the
+//   irradiance domain φ(I), φ(B) with the current φ_G; φ refitted } with the change per round reported → effects
+//   (effects.hpp) → verdict (Γ map, warnings, covered range).
 // Pure computation: images in, curves/kernel/diagnostics out; progress through a callback.
 #include <functional>
 #include <map>
@@ -40,24 +41,24 @@ struct PairCalibrationOptions {
   //  * a weaker sparsity prior (kernel.lambda is for the first estimate, where the histogram-matched model is only
   //    approximate and a strong prior keeps spurious mass out — an underexposed phone shot hits the size limit at
   //    0.01): with the re-weighting a small entry pays ~9× λ, which cuts the faint arms of real handheld kernels.
-  // Measured (docs/RESULTS.md#kernel-rounds, `bench pairs --ratio 2`, 27 pairs, and 27 held-out pairs of other photos,
-  // curves and kernels): mean |r/r_true − 1| 1.56 % / 5.0 % (λ 0.03, unweighted) → 0.93 % / 2.7 % (λ 0.01) → 0.74 % /
-  // 1.5 % (both); λ 0.005 is as good (better on the held-out pairs), 0.02 worse. false: the rounds unweighted.
+  // Both choices are measured by `crfcal bench pairs --ratio 2` (docs/RESULTS.md, "kernel rounds").
+  // false: the rounds unweighted.
   bool weight_irradiance_kernel = true;
   double irradiance_kernel_lambda = 0.01;
   double saturated_frame_limit = 0.6;  // more than this fraction of an image clipped: "saturated frame"
   // Kernel RMS radius (kernelRmsRadius) below which the blur cannot determine r: with almost no blur the pair is a
   // plain two-exposure pair, for which φ^γ with r^γ fits as well as φ with r (the exponential ambiguity), and the
-  // noise of the sharp shot (Jensen's bias) tilts the fit towards a low r. Measured (docs/RESULTS.md#small-blur, box
-  // blurs of 2–3 px, RMS radius 0.5–0.8 px, r = 4, EXIF 4 % off): a fitted r is 0.40–0.99 × the truth (φ_G 0.101);
-  // held at EXIF, φ_G 0.019.
+  // noise of the sharp shot (Jensen's bias) tilts the fit towards a low r (docs/RESULTS.md, "small blurs").
   double min_blur_radius = 1.0;
   // Below min_blur_radius (measured on the first kernel), if the first fit's r disagrees with fit.nominal_ratio
-  // (EXIF or --ratio) by more than effects.ratio_tolerance (the tolerance of nominal EXIF values), r is held at
-  // fit.nominal_ratio and a warning says so. Along the ambiguity log r moves by γ·log r, so near r = 1 the images
-  // still give r from brightness and agree with EXIF (measured at r = 1: nothing held, φ 0.110 either way); at r = 2
-  // and 4 they drift (φ_G 0.084 → 0.028 and 0.101 → 0.028 with the hold). false: r is fitted anyway (only warned).
+  // (EXIF or --ratio) by more than small_blur_ratio_tolerance, r is held at fit.nominal_ratio and a warning says
+  // so. Along the ambiguity log r moves by γ·log r, so near r = 1 the images still give r from brightness and agree
+  // with EXIF; at larger r they drift and the hold helps (docs/RESULTS.md, "small blurs").
+  // false: r is fitted anyway (only warned).
   bool fix_ratio_when_blur_is_small = true;
+  // The small-blur hold's tolerance on |r_images / r_EXIF − 1|: the tolerance of nominal EXIF values (rounded
+  // shutter times, ISOs and apertures); the same 10 % as effects.ratio_tolerance, set separately.
+  double small_blur_ratio_tolerance = 0.10;
   double min_covered_span = 0.5;     // intensity span covered by a channel's data below this: warn (extrapolation)
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
@@ -101,7 +102,8 @@ struct PairCalibrationResult {
 // sharp / blurred: the two shots (grey or BGR, CV_8U or CV_16U, same depth and channels; the same size, or
 // transposed sizes — portrait vs landscape — in which case the sharp shot is turned by the ±90° that registers).
 // All outputs (gamma map, weights, kernel) are in the (turned) sharp frame. Throws InvalidInput with a one-line
-// reason for saturated frames, a non-overlapping pair, an edgeless pair, a kernel at its size limit.
+// reason for saturated frames, a non-overlapping pair, two different scenes, an edgeless pair, a kernel at its size
+// limit; its subject() (error.hpp) says whether the sharp image, the blurred image or the pair is at fault.
 PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred, const PairCalibrationOptions& options);
 
 }  // namespace crfcal

@@ -1,0 +1,53 @@
+// Stage "fit window" of calibratePair: the window of the frame handed to the φ fit (crf_fitter.hpp, Eq. 21–25),
+// both shots cut to it per channel, and the fit of one channel on it.
+#include <algorithm>
+#include <string>
+#include <vector>
+
+#include "crfcal/kernel.hpp"
+#include "pair_stages.hpp"
+
+namespace crfcal::detail {
+
+void chooseFitWindow(PairCalibrationState& state) {
+  const PairCalibrationOptions& options = state.options;
+  PairCalibrationResult& result = state.result;
+  const cv::Mat& sharp = state.sharp;
+  // The whole frame for moderate sizes, else a window around the best tile.
+  cv::Rect window(0, 0, sharp.cols, sharp.rows);
+  if (std::max(sharp.cols, sharp.rows) > options.max_fit_side) {
+    const cv::Point centre = (result.tiles.front().rect.tl() + result.tiles.front().rect.br()) / 2;
+    const int w = std::min(options.max_fit_side, sharp.cols), h = std::min(options.max_fit_side, sharp.rows);
+    window = cv::Rect(std::clamp(centre.x - w / 2, 0, sharp.cols - w), std::clamp(centre.y - h / 2, 0, sharp.rows - h),
+                      w, h);
+  }
+  result.fit_window = window;
+  // Both shots inside the window, every channel (the blurred one resampled into the sharp frame: the window's
+  // origin composed into the homography). No data outside the overlap: 0, i.e. censored for the fitter.
+  const cv::Mat T = (cv::Mat_<double>(3, 3) << 1, 0, window.x, 0, 1, window.y, 0, 0, 1);
+  const cv::Mat blurred_window = options.register_pair
+                                     ? warpToSharp(state.blurred, result.registration.homography * T, window.size())
+                                     : state.blurred(window);
+  std::vector<cv::Mat> planes;
+  cv::split(blurred_window, planes);
+  const cv::Mat outside = ~state.overlap(window);
+  for (const auto& name : result.channels) {
+    cv::Mat s = channelPlane(state.sharp_planes, name)(window).clone(), b = channelPlane(planes, name).clone();
+    s.setTo(0, outside);
+    b.setTo(0, outside);
+    state.window_sharp[name] = s;
+    state.window_blurred[name] = b;
+  }
+}
+
+CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& name, const cv::Mat& kernel_full) {
+  // The smallest centred window holding the kernel's mass: the fitter dilates clipped regions and the frame
+  // border by the kernel's window, so empty margins (the estimation window's, or a given file's) would only
+  // cost pixels.
+  const cv::Mat kernel = cropKernel(kernel_full, 0.0);
+  CrfFitOptions fo = state.fit_options;
+  fo.progress = [&state, &name](double f, const std::string& stage) { state.report("fit " + name, f, stage); };
+  return fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
+}
+
+}  // namespace crfcal::detail

@@ -1,0 +1,130 @@
+// Stage "kernel" of calibratePair: the first blur kernel K of Eq. 4, B = g·(I ⊗ K), estimated before any φ is known
+// (kernel_estimation.hpp) between the histogram-matched sharp shot and the blurred one, and the kernel-aware
+// refinement of the registration (ECC of I ⊗ K against B, registration.hpp) with K estimated again on the result.
+#include <algorithm>
+#include <string>
+#include <vector>
+
+#include "crfcal/error.hpp"
+#include "crfcal/kernel.hpp"
+#include "pair_stages.hpp"
+
+namespace crfcal::detail {
+
+cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::Mat& mask) {
+  constexpr int bins = 4096;
+  std::vector<double> hs(bins, 0), ht(bins, 0);
+  for (int y = 0; y < source.rows; ++y) {
+    const double* s = source.ptr<double>(y);
+    const double* t = target.ptr<double>(y);
+    const uchar* m = mask.ptr<uchar>(y);
+    for (int x = 0; x < source.cols; ++x) {
+      if (!m[x]) continue;
+      hs[std::clamp(static_cast<int>(s[x] * (bins - 1) + 0.5), 0, bins - 1)] += 1;
+      ht[std::clamp(static_cast<int>(t[x] * (bins - 1) + 0.5), 0, bins - 1)] += 1;
+    }
+  }
+  for (int i = 1; i < bins; ++i) {
+    hs[i] += hs[i - 1];
+    ht[i] += ht[i - 1];
+  }
+  std::vector<double> lut(bins);
+  const double ns = std::max(1.0, hs.back()), nt = std::max(1.0, ht.back());
+  int j = 0;
+  for (int i = 0; i < bins; ++i) {
+    const double q = (i == 0 ? hs[0] / 2 : 0.5 * (hs[i] + hs[i - 1])) / ns;
+    while (j < bins - 1 && ht[j] / nt < q) ++j;
+    lut[i] = static_cast<double>(j) / (bins - 1);
+  }
+  cv::Mat out(source.size(), CV_64F);
+  for (int y = 0; y < source.rows; ++y) {
+    const double* s = source.ptr<double>(y);
+    double* o = out.ptr<double>(y);
+    for (int x = 0; x < source.cols; ++x) o[x] = lut[std::clamp(static_cast<int>(s[x] * (bins - 1) + 0.5), 0, bins - 1)];
+  }
+  return out;
+}
+
+KernelEstimate estimateCanvasKernel(PairCalibrationState& state, const cv::Mat& s, const cv::Mat& b, bool per_tile,
+                                    double lambda, const cv::Mat& weights) {
+  const Canvas& canvas = state.canvas;
+  PairCalibrationResult& result = state.result;
+  KernelEstimationOptions ko = state.options.kernel;
+  ko.lambda = lambda;
+  ko.progress = [&state](double f, const std::string& stage) { state.report("kernel", f, stage); };
+  KernelEstimate k = estimateKernel(s, b, canvas.regions, canvas.usable, ko, weights);
+  if (per_tile && canvas.regions.size() > 1) {
+    result.tile_kernels.clear();
+    KernelEstimationOptions to = ko;
+    to.progress = nullptr;
+    to.throw_on_size_limit = false;
+    for (const auto& r : canvas.regions) {
+      try {
+        result.tile_kernels.push_back(estimateKernel(s, b, {r}, canvas.usable, to, weights).kernel);
+      } catch (const InvalidInput&) {
+        // a tile without usable edges: no per-tile kernel
+      }
+    }
+    result.disagreement = kernelDisagreement(result.tile_kernels, k.kernel);
+  }
+  return k;
+}
+
+namespace {
+
+// Kernel-aware refinement of the alignment: ECC of I ⊗ K against B (equally blurred), then re-align.
+void refineRegistrationWithKernel(PairCalibrationState& state, const cv::Mat& kernel) {
+  const PairCalibrationOptions& options = state.options;
+  PairCalibrationResult& result = state.result;
+  if (!options.register_pair || !options.refine_registration) return;
+  const auto start = Clock::now();
+  cv::Mat sharp_ok;
+  cv::bitwise_and(~state.sharp_clipped, state.overlap, sharp_ok);
+  const RegistrationResult refined = refineRegistration(state.sharp_g8, state.blurred_own_g8, result.registration,
+                                                        kernel, sharp_ok, options.registration);
+  if (refined.kernel_refined) {
+    result.registration = refined;
+    alignToRegistration(state);
+  }
+  result.timings["register"] += secondsSince(start);
+  state.report("register", 1, result.registration.summary());
+}
+
+// Round 0: no φ yet. The sharp image's levels are mapped to the blurred one's by histogram matching (a monotone
+// map that removes most of the exposure and tone difference), so B ≈ g · (I' ⊗ K) holds approximately.
+KernelEstimate intensityDomainKernel(PairCalibrationState& state, bool per_tile) {
+  const Canvas& canvas = state.canvas;
+  return estimateCanvasKernel(state, histogramMatch(canvas.sharp_denoised, canvas.blurred, canvas.usable),
+                              canvas.blurred, per_tile, state.options.kernel.lambda, cv::Mat());
+}
+
+}  // namespace
+
+void estimateFirstKernel(PairCalibrationState& state) {
+  const PairCalibrationOptions& options = state.options;
+  PairCalibrationResult& result = state.result;
+  const auto start = Clock::now();
+  const double register_before_kernel = result.timings["register"];
+  if (!options.given_kernel.empty()) {
+    state.kernel = normalizeKernel(options.given_kernel);
+    result.kernel.kernel = state.kernel;
+    result.kernel.support = cv::countNonZero(state.kernel);
+    result.kernel.centroid = kernelCentroid(state.kernel);
+    result.kernel_estimated = false;
+    // A given kernel cannot absorb a residual shift: the alignment must be right.
+    refineRegistrationWithKernel(state, state.kernel);
+  } else {
+    state.report("kernel", 0);
+    result.kernel = intensityDomainKernel(state, false);
+    state.kernel = result.kernel.kernel;
+    if (options.register_pair && options.refine_registration) {
+      refineRegistrationWithKernel(state, state.kernel);
+      result.kernel = intensityDomainKernel(state, options.rounds == 0);
+      state.kernel = result.kernel.kernel;
+    }
+  }
+  // The refinement's time counts as registration.
+  result.timings["kernel"] = secondsSince(start) - (result.timings["register"] - register_before_kernel);
+}
+
+}  // namespace crfcal::detail

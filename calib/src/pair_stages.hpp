@@ -1,0 +1,127 @@
+#pragma once
+// The stages of calibratePair (pair_calibration.cpp), each a function over one private state. In order:
+//   checks           pair_stage_checks.cpp   sizes, depths, orientation; saturated frames; no edges
+//   align            pair_stage_align.cpp    registration (seed Sec. 4 "we first align"), the blurred shot warped into
+//                                            the sharp frame, the same-scene test, the kernel's tiles and canvas
+//   kernel           pair_stage_kernel.cpp   first kernel (Eq. 4 in the histogram-matched intensity domain) and the
+//                                            kernel-aware registration refinement
+//   fit window       pair_stage_fit.cpp      the window handed to the φ fit (Eq. 21–25) and the per-channel fit
+//   kernel↔φ rounds  pair_stage_rounds.cpp   φ_G, the small-blur hold of r, K re-estimated in the irradiance domain
+//   effects          pair_stage_effects.cpp  named effects on the residuals (effects.hpp)
+//   verdict          pair_stage_verdict.cpp  Γ map (Sec. 3), weights, warnings and the data's covered range
+// Internal to calib (not installed). Everything works in the SHARP frame: the smooth blurred shot is resampled,
+// the noisy sharp shot never is (registration.hpp, warpToSharp).
+#include <chrono>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "crfcal/pair_calibration.hpp"
+
+namespace crfcal::detail {
+
+using Clock = std::chrono::steady_clock;
+inline double secondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+// The kernel's working set: the edge-rich tiles (each grown by the kernel's reach) side by side in one small
+// mosaic, so that denoising, tone matching and the φ transforms of every round touch a few megapixels, not the
+// whole 24 MP frame. A one-pixel unusable gutter separates the crops (no equation straddles two of them). Small
+// frames (one region) use the frame itself.
+struct Canvas {
+  cv::Mat sharp, sharp_denoised, blurred, usable;  // CV_64F in [0,1] (usable CV_8U)
+  std::vector<cv::Rect> regions;                   // the tiles in canvas coordinates
+};
+
+// pair_canvas.cpp: the canvas of `tiles` (full-frame 8/16-bit planes in the sharp frame), crops grown by `margin`.
+Canvas makeCanvas(const cv::Mat& sharp8, const cv::Mat& blurred8, const cv::Mat& usable, const std::vector<Tile>& tiles,
+                  int margin);
+
+struct PairCalibrationState {
+  explicit PairCalibrationState(const PairCalibrationOptions& o) : options(o) {}
+  const PairCalibrationOptions& options;
+  PairCalibrationResult result;  // filled stage by stage; returned at the end
+
+  // Forwards to options.progress (if any).
+  void report(const std::string& stage, double fraction, const std::string& detail = {}) const {
+    if (options.progress) options.progress(stage, fraction, detail);
+  }
+
+  // checks / orientation
+  cv::Mat sharp, blurred;        // the shots; the sharp one turned to the blurred one's orientation if needed
+  bool registered = false;       // registration already done while finding the orientation
+  Clock::time_point register_start = Clock::now();  // the "register" timing runs from here
+
+  // Full-frame planes in the images' own 8/16-bit depth (masks, tiles, warps); only the kernel's tiles and the
+  // fit window are converted to floating point.
+  std::vector<cv::Mat> sharp_planes, blurred_planes;  // BGR order (one plane for grey)
+  cv::Mat sharp_g8, blurred_own_g8;                   // G planes; the blurred one in its own frame
+  double clip_high = 0, clip_low = 0;                 // fit.saturation_high/low in the images' codes
+  cv::Mat sharp_clipped;                              // I's clipped regions (CV_8U)
+
+  // align: everything that depends on the alignment (re-done after the kernel-aware refinement)
+  cv::Mat blurred_g8;  // B's G plane resampled into the sharp frame
+  cv::Mat overlap;     // CV_8U, sharp-frame pixels the blurred shot covers
+  cv::Mat usable;      // CV_8U, overlap minus (dilated) clipped pixels of either shot
+  Canvas canvas;
+
+  // kernel
+  cv::Mat kernel;  // K, the current kernel (result.kernel.kernel once estimated)
+
+  // fit window: both shots inside result.fit_window, per channel, in the images' depth (0 outside the overlap)
+  std::map<std::string, cv::Mat> window_sharp, window_blurred;
+
+  // rounds
+  CrfFitOptions fit_options;      // options.fit; fit_ratio cleared when the small-blur hold applies
+  double first_blur_radius = 0;   // kernelRmsRadius of the first kernel (the hold's criterion)
+};
+
+// The plane of channel `name` ("R", "G", "B") in BGR-ordered `planes` (grey: the only plane).
+const cv::Mat& channelPlane(const std::vector<cv::Mat>& planes, const std::string& name);
+
+// ---- checks (pair_stage_checks.cpp)
+// Sizes, bit depths, channels; true when the frames are transposed (portrait vs landscape). Throws InvalidInput.
+bool checkPairShapes(const cv::Mat& sharp, const cv::Mat& blurred, const PairCalibrationOptions& options);
+// Channels, planes and clip levels of state.sharp / state.blurred.
+void splitPlanes(PairCalibrationState& state);
+// Saturated frames and an edgeless sharp shot. Throws InvalidInput (subject: the image at fault).
+void checkExposureAndEdges(const PairCalibrationState& state);
+
+// ---- align (pair_stage_align.cpp)
+// The sharp shot turned by the ±90° that registers onto the blurred one (sets state.sharp, registered).
+void turnSharpShot(PairCalibrationState& state, const cv::Mat& sharp_in);
+// Registration (unless done while turning), then the alignment, the same-scene test and the kernel's tiles.
+void registerShots(PairCalibrationState& state);
+// The blurred shot warped into the sharp frame and the overlap, then the usable pixels, tiles and canvas.
+void alignToRegistration(PairCalibrationState& state);
+// Normalised cross-correlation of the two shots' coarse gradient magnitudes over the overlap, in [-1, 1]: near 1
+// for one scene (whatever the exposure, tone curve and blur), near 0 for two unrelated scenes.
+double sameSceneCorrelation(const cv::Mat& sharp_g, const cv::Mat& blurred_g_in_sharp, const cv::Mat& overlap);
+// Below this the pair is refused as two different scenes.
+constexpr double min_same_scene_correlation = 0.3;
+
+// ---- kernel (pair_stage_kernel.cpp)
+// Monotone map of `source` values (CV_64F in [0,1]) so that their histogram inside `mask` matches `target`'s.
+cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::Mat& mask);
+// The first kernel (or the given one) with the kernel-aware registration refinement; sets state.kernel.
+void estimateFirstKernel(PairCalibrationState& state);
+// One kernel estimate on the canvas (s, b: canvas images); per_tile: also the tiles' own kernels.
+KernelEstimate estimateCanvasKernel(PairCalibrationState& state, const cv::Mat& s, const cv::Mat& b, bool per_tile,
+                                    double lambda, const cv::Mat& weights);
+
+// ---- fit window (pair_stage_fit.cpp)
+void chooseFitWindow(PairCalibrationState& state);
+// φ of channel `name` on the fit window with `kernel` (state.fit_options).
+CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& name, const cv::Mat& kernel);
+
+// ---- kernel↔φ rounds (pair_stage_rounds.cpp)
+void fitKernelPhiRounds(PairCalibrationState& state);
+
+// ---- effects (pair_stage_effects.cpp)
+void diagnoseResidualEffects(PairCalibrationState& state);
+
+// ---- verdict (pair_stage_verdict.cpp)
+void computeVerdict(PairCalibrationState& state);
+
+}  // namespace crfcal::detail
