@@ -330,7 +330,7 @@ TEST(CalibrateCli, SaturatedBlurredShotNamesItsFile) {
   writeShot(dir / "b.jpg", white, 100, 0.08);
   const auto r = test::run(bin() + " calibrate " + (dir / "a.jpg").string() + " " + (dir / "b.jpg").string() +
                            " -o " + (dir / "out").string());
-  expectCleanFailure(r, dir / "out", "crfcal: error: " + (dir / "b.jpg").string() + ": saturated frame");
+  expectCleanFailure(r, dir / "out", "crfcal: error: " + (dir / "b.jpg").string() + ": the blurred image is saturated");
 }
 
 TEST(CalibrateCli, KernelHitsSizeLimit) {

@@ -51,7 +51,17 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   detail::splitPlanes(state);
   detail::checkExposureAndEdges(state);
   detail::registerShots(state);
-  detail::estimateFirstKernel(state);
+  try {
+    detail::estimateFirstKernel(state);
+  } catch (const InvalidInput& e) {
+    // A kernel that cannot explain one shot by the other, on a pair whose edges barely correlate: two scenes
+    // (issue 15: the size-limit advice would only lead to "no edges").
+    if (state.same_scene_correlation >= detail::doubtful_same_scene_correlation) throw;
+    char buffer[120];
+    std::snprintf(buffer, sizeof buffer, "the two images do not show the same scene (their edges correlate %.2f "
+                  "after registration; the kernel estimate then failed: ", state.same_scene_correlation);
+    throw InvalidInput(buffer + e.reason() + ")", ErrorSubject::pair);
+  }
   detail::chooseFitWindow(state);
   detail::fitKernelPhiRounds(state);
   if (options.effects.enabled) detail::diagnoseResidualEffects(state);

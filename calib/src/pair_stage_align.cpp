@@ -74,8 +74,9 @@ void selectKernelTiles(PairCalibrationState& state) {
 // Refuses a pair whose shots do not show one scene. Registration alone does not catch it: ECC on two smoothed,
 // equalised, unrelated photos can exceed its threshold, and the kernel then grows to its size limit trying to
 // explain one image by the other.
-void checkSameScene(const PairCalibrationState& state) {
+void checkSameScene(PairCalibrationState& state) {
   const double correlation = sameSceneCorrelation(state.sharp_g8, state.blurred_g8, state.overlap);
+  state.same_scene_correlation = correlation;
   if (correlation < min_same_scene_correlation) {
     char buffer[300];
     std::snprintf(buffer, sizeof buffer,

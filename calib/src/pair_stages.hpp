@@ -51,6 +51,7 @@ struct PairCalibrationState {
   // checks / orientation
   cv::Mat sharp, blurred;        // the shots; the sharp one turned to the blurred one's orientation if needed
   bool registered = false;       // registration already done while finding the orientation
+  double same_scene_correlation = 1;  // sameSceneCorrelation of the registered pair (align stage)
   Clock::time_point register_start = Clock::now();  // the "register" timing runs from here
 
   // Full-frame planes in the images' own 8/16-bit depth (masks, tiles, warps); only the kernel's tiles and the
@@ -98,8 +99,14 @@ void alignToRegistration(PairCalibrationState& state);
 // Normalised cross-correlation of the two shots' coarse gradient magnitudes over the overlap, in [-1, 1]: near 1
 // for one scene (whatever the exposure, tone curve and blur), near 0 for two unrelated scenes.
 double sameSceneCorrelation(const cv::Mat& sharp_g, const cv::Mat& blurred_g_in_sharp, const cv::Mat& overlap);
-// Below this the pair is refused as two different scenes.
-constexpr double min_same_scene_correlation = 0.3;
+// Below this the pair is refused as two different scenes at once. Measured (docs/RESULTS.md, "two different
+// scenes"): unrelated pairs that register 0.08 at most; real and semi-real pairs 0.67 and more with Levin kernels
+// 1, 3, 8, but 0.28 for a semi-real pair with the long straight Levin kernel 4 (a linear blur wipes the edges along
+// it, which no isotropic smoothing of the sharp shot reproduces) — so the floor stays well below that.
+constexpr double min_same_scene_correlation = 0.15;
+// Between the floor and this, a pair is only doubtful: when a later stage fails (the kernel grows to its size
+// limit, no edges), the failure is reported as two different scenes with the stage's own reason.
+constexpr double doubtful_same_scene_correlation = 0.5;
 
 // ---- kernel (pair_stage_kernel.cpp)
 // Monotone map of `source` values (CV_64F in [0,1]) so that their histogram inside `mask` matches `target`'s.
