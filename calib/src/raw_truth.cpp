@@ -346,8 +346,9 @@ std::string RawTruthResult::summary() const {
   return out.str();
 }
 
-RawTruthResult computeRawTruth(const cv::Mat& jpeg, const cv::Mat& linear, const RawTruthOptions& options) {
-  options.check();
+namespace {
+
+void checkInputs(const cv::Mat& jpeg, const cv::Mat& linear) {
   if (jpeg.empty()) throw InvalidInput("raw truth: the JPEG is empty");
   if (linear.empty()) throw InvalidInput("raw truth: the linear image is empty");
   for (const cv::Mat* m : {&jpeg, &linear}) {
@@ -356,10 +357,10 @@ RawTruthResult computeRawTruth(const cv::Mat& jpeg, const cv::Mat& linear, const
     if (m->depth() != CV_8U && m->depth() != CV_16U && m->depth() != CV_32F && m->depth() != CV_64F)
       throw InvalidInput("raw truth: images must be 8/16-bit or floating point");
   }
-  RawTruthResult result;
+}
 
-  // Channels wanted.
-  const bool jpeg_colour = jpeg.channels() >= 3;
+// The channels wanted, each with its slot in Pixel::jpeg (a grey JPEG has only G).
+std::vector<ChannelJob> channelJobs(bool jpeg_colour, const RawTruthOptions& options) {
   std::vector<ChannelJob> jobs;
   for (const std::string name : {"R", "G", "B"}) {
     if (std::find(options.channels.begin(), options.channels.end(), name) == options.channels.end()) continue;
@@ -367,211 +368,257 @@ RawTruthResult computeRawTruth(const cv::Mat& jpeg, const cv::Mat& linear, const
     jobs.push_back({name, name == "R" ? 0 : name == "G" ? 1 : 2});  // slot in Pixel::jpeg (grey: G)
   }
   if (jobs.empty()) throw InvalidInput("raw truth: a grey JPEG has only the channel G");
+  return jobs;
+}
 
-  // Native planes, unit scale; clip levels and masks at native resolution (a single clipped pixel matters).
-  const std::vector<cv::Mat> jpeg_native = unitPlanes(jpeg), linear_native = unitPlanes(linear);
-  const int linear_planes = static_cast<int>(linear_native.size());
+// The state shared by the steps of computeRawTruth: the planes of both images, native and at the working size, their
+// clip levels and masks, the registration and the flat-pixel map.
+struct RawTruthFrames {
+  std::vector<cv::Mat> jpeg_native, linear_native;  // unit scale, native resolution
+  std::vector<std::optional<double>> jpeg_clip, linear_clip;
+  cv::Size jw;                                      // JPEG working size
+  std::vector<cv::Mat> J, jpeg_mask;                // JPEG planes and clip masks at jw
+  double ls = 1;                                    // linear working scale (same pixel area as the JPEG's)
+  std::vector<cv::Mat> L, linear_mask;              // linear planes and clip masks (turned; after step 2 in jw)
+  cv::Mat H = cv::Mat::eye(3, 3, CV_64F);           // linear working → JPEG working
+  cv::Mat overlap, gradient;
+};
+
+// Native planes, unit scale; clip levels at native resolution (a single clipped pixel matters).
+void readNativePlanes(const cv::Mat& jpeg, const cv::Mat& linear, const RawTruthOptions& options, RawTruthFrames& f,
+                      RawTruthResult& result) {
+  f.jpeg_native = unitPlanes(jpeg);
+  f.linear_native = unitPlanes(linear);
   const double jpeg_top = fullScale(jpeg), linear_top = fullScale(linear);
-  std::vector<std::optional<double>> jpeg_clip(jpeg_native.size()), linear_clip(linear_native.size());
+  f.jpeg_clip.assign(f.jpeg_native.size(), std::nullopt);
+  f.linear_clip.assign(f.linear_native.size(), std::nullopt);
   static const char* kNames[] = {"R", "G", "B"};
   auto planeName = [](size_t count, size_t i) { return count == 1 ? std::string("G") : std::string(kNames[i]); };
-  for (size_t i = 0; i < jpeg_native.size(); ++i) {
-    jpeg_clip[i] = clipLevel(jpeg_native[i], jpeg_top, options.clip_pile, options.clip_tolerance);
-    if (jpeg_clip[i]) result.jpeg_clip[planeName(jpeg_native.size(), i)] = *jpeg_clip[i];
+  for (size_t i = 0; i < f.jpeg_native.size(); ++i) {
+    f.jpeg_clip[i] = clipLevel(f.jpeg_native[i], jpeg_top, options.clip_pile, options.clip_tolerance);
+    if (f.jpeg_clip[i]) result.jpeg_clip[planeName(f.jpeg_native.size(), i)] = *f.jpeg_clip[i];
   }
-  for (size_t i = 0; i < linear_native.size(); ++i) {
-    linear_clip[i] = clipLevel(linear_native[i], linear_top, options.clip_pile, options.clip_tolerance);
-    if (linear_clip[i]) result.linear_clip[planeName(linear_native.size(), i)] = *linear_clip[i];
+  for (size_t i = 0; i < f.linear_native.size(); ++i) {
+    f.linear_clip[i] = clipLevel(f.linear_native[i], linear_top, options.clip_pile, options.clip_tolerance);
+    if (f.linear_clip[i]) result.linear_clip[planeName(f.linear_native.size(), i)] = *f.linear_clip[i];
   }
+}
 
-  // Working sizes: JPEG area-downscaled to ≤ max_dimension; the linear image to the same pixel area.
+// Working sizes: JPEG area-downscaled to ≤ max_dimension; the linear image to the same pixel area.
+void makeWorkingJpeg(const cv::Mat& jpeg, const cv::Mat& linear, const RawTruthOptions& options, RawTruthFrames& f,
+                     RawTruthResult& result) {
   const double js = std::min(1.0, double(options.max_dimension) / std::max(jpeg.cols, jpeg.rows));
   const cv::Size jw(std::max(1, int(std::lround(jpeg.cols * js))), std::max(1, int(std::lround(jpeg.rows * js))));
+  f.jw = jw;
   result.working_size = jw;
-  std::vector<cv::Mat> J(jpeg_native.size());
-  for (size_t i = 0; i < J.size(); ++i) J[i] = resizeTo(jpeg_native[i], jw);
-  std::vector<cv::Mat> jpeg_mask(J.size());
-  for (size_t i = 0; i < J.size(); ++i)
-    jpeg_mask[i] = jpeg_clip[i] ? shrinkMask((jpeg_native[i] >= *jpeg_clip[i]), jw) : cv::Mat::zeros(jw, CV_8U);
+  f.J.resize(f.jpeg_native.size());
+  for (size_t i = 0; i < f.J.size(); ++i) f.J[i] = resizeTo(f.jpeg_native[i], jw);
+  f.jpeg_mask.resize(f.J.size());
+  for (size_t i = 0; i < f.J.size(); ++i)
+    f.jpeg_mask[i] = f.jpeg_clip[i] ? shrinkMask((f.jpeg_native[i] >= *f.jpeg_clip[i]), jw) : cv::Mat::zeros(jw, CV_8U);
+  f.ls = std::sqrt(double(jw.area()) / double(linear.size().area()));
+  result.linear_scale = f.ls;
+}
 
-  const double ls = std::sqrt(double(jw.area()) / double(linear.size().area()));
-  result.linear_scale = ls;
-  auto linearWorking = [&](int degrees) {
-    // Scaled before turning (the turned copy keeps the JPEG's pixel area).
-    const cv::Size size(std::max(1, int(std::lround(linear.cols * ls))), std::max(1, int(std::lround(linear.rows * ls))));
-    std::vector<cv::Mat> planes(linear_native.size()), masks(linear_native.size());
-    for (size_t i = 0; i < planes.size(); ++i) {
-      planes[i] = turn(resizeTo(linear_native[i], size), degrees);
-      masks[i] = turn(linear_clip[i] ? shrinkMask((linear_native[i] >= *linear_clip[i]), size) : cv::Mat::zeros(size, CV_8U),
-                      degrees);
-    }
-    return std::pair{planes, masks};
-  };
+// The linear planes and clip masks at the working scale, turned by `degrees` (scaled before turning: the turned copy
+// keeps the JPEG's pixel area).
+std::pair<std::vector<cv::Mat>, std::vector<cv::Mat>> linearWorking(const RawTruthFrames& f, cv::Size linear_size,
+                                                                     int degrees) {
+  const cv::Size size(std::max(1, int(std::lround(linear_size.width * f.ls))),
+                      std::max(1, int(std::lround(linear_size.height * f.ls))));
+  std::vector<cv::Mat> planes(f.linear_native.size()), masks(f.linear_native.size());
+  for (size_t i = 0; i < planes.size(); ++i) {
+    planes[i] = turn(resizeTo(f.linear_native[i], size), degrees);
+    masks[i] = turn(f.linear_clip[i] ? shrinkMask((f.linear_native[i] >= *f.linear_clip[i]), size) : cv::Mat::zeros(size, CV_8U),
+                    degrees);
+  }
+  return std::pair{planes, masks};
+}
 
-  // Orientation and registration (step 1).
-  std::vector<cv::Mat> L, linear_mask;
-  cv::Mat H = cv::Mat::eye(3, 3, CV_64F);
+// Orientation and registration (step 1): the turns that fit the aspect ratio, tried in turn until one registers.
+void orientAndRegister(const cv::Mat& jpeg, const cv::Mat& linear, const RawTruthOptions& options, RawTruthFrames& f,
+                       RawTruthResult& result) {
   if (!options.register_images) {
     if (linear.size() != jpeg.size())
       throw InvalidInput("raw truth: without registration the linear image must have the JPEG's size");
-    std::tie(L, linear_mask) = linearWorking(0);
+    std::tie(f.L, f.linear_mask) = linearWorking(f, linear.size(), 0);
     result.registration.method = "none (given as aligned)";
     result.registration.ecc_correlation = 1;
     result.registration.overlap_fraction = 1;
-  } else {
-    const double aj = double(jpeg.cols) / jpeg.rows, al = double(linear.cols) / linear.rows;
-    std::vector<int> candidates;
-    const bool upright = std::abs(std::log(aj / al)) <= std::abs(std::log(aj * al));
-    if (std::abs(std::log(aj)) < 0.1) candidates = {0, 90, 270, 180};  // square-ish: any turn fits the aspect
-    else if (upright) candidates = {0, 180};
-    else candidates = {90, 270};
-    const cv::Mat jpeg_eq = equalise(greyOf(J));
-    RegistrationOptions reg = options.registration;
-    reg.max_dimension = std::max(reg.max_dimension, std::max(jw.width, jw.height));
-    std::string failure;
-    bool found = false;
-    for (int degrees : candidates) {
-      auto [planes, masks] = linearWorking(degrees);
-      try {
-        const RegistrationResult r = registerPair(equalise(greyOf(planes)), jpeg_eq, reg);
-        result.registration = r;
-        result.rotation_degrees = degrees;
-        H = r.homography;
-        L = std::move(planes);
-        linear_mask = std::move(masks);
-        found = true;
-        break;
-      } catch (const InvalidInput& e) {
-        if (failure.empty()) failure = e.reason();
-      }
+    return;
+  }
+  const double aj = double(jpeg.cols) / jpeg.rows, al = double(linear.cols) / linear.rows;
+  std::vector<int> candidates;
+  const bool upright = std::abs(std::log(aj / al)) <= std::abs(std::log(aj * al));
+  if (std::abs(std::log(aj)) < 0.1) candidates = {0, 90, 270, 180};  // square-ish: any turn fits the aspect
+  else if (upright) candidates = {0, 180};
+  else candidates = {90, 270};
+  const cv::Mat jpeg_eq = equalise(greyOf(f.J));
+  RegistrationOptions reg = options.registration;
+  reg.max_dimension = std::max(reg.max_dimension, std::max(f.jw.width, f.jw.height));
+  std::string failure;
+  bool found = false;
+  for (int degrees : candidates) {
+    auto [planes, masks] = linearWorking(f, linear.size(), degrees);
+    try {
+      const RegistrationResult r = registerPair(equalise(greyOf(planes)), jpeg_eq, reg);
+      result.registration = r;
+      result.rotation_degrees = degrees;
+      f.H = r.homography;
+      f.L = std::move(planes);
+      f.linear_mask = std::move(masks);
+      found = true;
+      break;
+    } catch (const InvalidInput& e) {
+      if (failure.empty()) failure = e.reason();
     }
-    if (!found) throw InvalidInput("the linear image does not register with the JPEG (not the same shot?): " + failure);
-    if (result.rotation_degrees != 0)
-      result.warnings.push_back("the linear image was turned by " + std::to_string(result.rotation_degrees) +
-                                " degrees to match the JPEG");
   }
+  if (!found) throw InvalidInput("the linear image does not register with the JPEG (not the same shot?): " + failure);
+  if (result.rotation_degrees != 0)
+    result.warnings.push_back("the linear image was turned by " + std::to_string(result.rotation_degrees) +
+                              " degrees to match the JPEG");
+}
 
-  // Into the JPEG frame; low-pass (step 2).
-  const cv::Size linear_working = L[0].size();
+void smooth(cv::Mat& m, double sigma, int support) {
+  if (sigma > 0) cv::GaussianBlur(m, m, cv::Size(2 * support + 1, 2 * support + 1), sigma);
+}
+
+// Into the JPEG frame; low-pass (step 2). Clip masks grow by the low-pass support.
+void intoJpegFrame(const RawTruthOptions& options, RawTruthFrames& f, RawTruthResult& result) {
+  const cv::Size linear_working = f.L[0].size();
   const int support = static_cast<int>(std::ceil(3 * options.smoothing_sigma));
-  auto smooth = [&](cv::Mat& m) {
-    if (options.smoothing_sigma > 0) cv::GaussianBlur(m, m, cv::Size(2 * support + 1, 2 * support + 1), options.smoothing_sigma);
-  };
-  for (auto& p : L) {
-    p = warpToBlurred(p, H, jw);
-    smooth(p);
+  for (auto& p : f.L) {
+    p = warpToBlurred(p, f.H, f.jw);
+    smooth(p, options.smoothing_sigma, support);
   }
-  for (auto& p : J) smooth(p);
+  for (auto& p : f.J) smooth(p, options.smoothing_sigma, support);
   const cv::Mat grow = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * support + 1, 2 * support + 1));
-  for (auto& m : linear_mask) {
-    m = warpToBlurred(m, H, jw) > 0;
+  for (auto& m : f.linear_mask) {
+    m = warpToBlurred(m, f.H, f.jw) > 0;
     cv::dilate(m, m, grow);
   }
-  for (auto& m : jpeg_mask) cv::dilate(m, m, grow);
-  const cv::Mat overlap = overlapMask(linear_working, H, jw, std::max(options.border, support) + 1);
-  result.overlap_pixels = cv::countNonZero(overlap);
+  for (auto& m : f.jpeg_mask) cv::dilate(m, m, grow);
+  f.overlap = overlapMask(linear_working, f.H, f.jw, std::max(options.border, support) + 1);
+  result.overlap_pixels = cv::countNonZero(f.overlap);
   if (result.overlap_pixels == 0) throw InvalidInput("the linear image does not overlap the JPEG");
+}
 
-  // Flatness (step 3): the JPEG's gradient magnitude, maximised over the window, against its own quantile.
-  cv::Mat gradient;
+// Flatness (step 3): the JPEG's gradient magnitude, maximised over the window, against its own quantile over the
+// unclipped overlap.
+void measureFlatness(const RawTruthOptions& options, RawTruthFrames& f, RawTruthResult& result) {
   {
-    const cv::Mat grey = greyOf(J);
+    const cv::Mat grey = greyOf(f.J);
     cv::Mat gx, gy;
     cv::Sobel(grey, gx, CV_32F, 1, 0, 3, 1.0 / 8);
     cv::Sobel(grey, gy, CV_32F, 0, 1, 3, 1.0 / 8);
-    cv::magnitude(gx, gy, gradient);
+    cv::magnitude(gx, gy, f.gradient);
     if (options.flat_radius > 0)
-      cv::dilate(gradient, gradient,
+      cv::dilate(f.gradient, f.gradient,
                  cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * options.flat_radius + 1, 2 * options.flat_radius + 1)));
   }
-  cv::Mat any_clip = cv::Mat::zeros(jw, CV_8U);
-  for (const auto& m : jpeg_mask) any_clip |= m;
-  for (const auto& m : linear_mask) any_clip |= m;
-  {
-    std::vector<float> values;
-    values.reserve(static_cast<size_t>(result.overlap_pixels));
-    for (int y = 0; y < jw.height; ++y) {
-      const auto* o = overlap.ptr<std::uint8_t>(y);
-      const auto* c = any_clip.ptr<std::uint8_t>(y);
-      const float* g = gradient.ptr<float>(y);
-      for (int x = 0; x < jw.width; ++x)
-        if (o[x] && !c[x]) values.push_back(g[x]);
-    }
-    if (values.size() < 100) throw InvalidInput("the linear image and the JPEG share too few unclipped pixels");
-    const auto q = values.begin() + static_cast<std::ptrdiff_t>(options.flat_quantile * (values.size() - 1));
-    std::nth_element(values.begin(), q, values.end());
-    result.flat_threshold = *q;
+  cv::Mat any_clip = cv::Mat::zeros(f.jw, CV_8U);
+  for (const auto& m : f.jpeg_mask) any_clip |= m;
+  for (const auto& m : f.linear_mask) any_clip |= m;
+  std::vector<float> values;
+  values.reserve(static_cast<size_t>(result.overlap_pixels));
+  for (int y = 0; y < f.jw.height; ++y) {
+    const auto* o = f.overlap.ptr<std::uint8_t>(y);
+    const auto* c = any_clip.ptr<std::uint8_t>(y);
+    const float* g = f.gradient.ptr<float>(y);
+    for (int x = 0; x < f.jw.width; ++x)
+      if (o[x] && !c[x]) values.push_back(g[x]);
   }
+  if (values.size() < 100) throw InvalidInput("the linear image and the JPEG share too few unclipped pixels");
+  const auto q = values.begin() + static_cast<std::ptrdiff_t>(options.flat_quantile * (values.size() - 1));
+  std::nth_element(values.begin(), q, values.end());
+  result.flat_threshold = *q;
+}
 
-  // Samples (step 4): flat overlap pixels with their clip flags and spatial fold.
+// One flat overlap pixel with its clip flags and spatial fold.
+Pixel samplePixel(const RawTruthFrames& f, int x, int y, int bw, int bh) {
+  Pixel p;
+  for (size_t i = 0; i < f.J.size(); ++i) {
+    const size_t slot = f.J.size() == 1 ? 1 : i;  // a grey JPEG is the channel G
+    const float v = f.J[i].at<float>(y, x);
+    p.jpeg[slot] = v;
+    if (f.jpeg_mask[i].at<std::uint8_t>(y, x)) p.jpeg_contaminated |= std::uint8_t(1u << slot);
+    if (f.jpeg_clip[i] && v >= *f.jpeg_clip[i] - 1e-4) p.jpeg_plateau |= std::uint8_t(1u << slot);
+  }
+  if (f.J.size() == 1) p.jpeg[0] = p.jpeg[2] = p.jpeg[1];
+  for (size_t k = 0; k < f.L.size(); ++k) {
+    const float v = f.L[k].at<float>(y, x);
+    p.linear[k] = v;
+    if (f.linear_mask[k].at<std::uint8_t>(y, x)) p.linear_contaminated = true;
+    if (f.linear_clip[k] && v >= *f.linear_clip[k] - 1e-4) p.linear_plateau |= std::uint8_t(1u << k);
+  }
+  p.fold = static_cast<std::uint8_t>((x / bw + 2 * (y / bh)) % 4);
+  return p;
+}
+
+// Samples (step 4): every flat overlap pixel, thinned by a regular stride to at most max_pixels.
+std::vector<Pixel> samplePixels(const RawTruthOptions& options, const RawTruthFrames& f, RawTruthResult& result) {
   std::vector<Pixel> pixels;
-  {
-    const int bw = (jw.width + options.fold_grid - 1) / options.fold_grid;
-    const int bh = (jw.height + options.fold_grid - 1) / options.fold_grid;
-    for (int y = 0; y < jw.height; ++y) {
-      const auto* o = overlap.ptr<std::uint8_t>(y);
-      const float* g = gradient.ptr<float>(y);
-      for (int x = 0; x < jw.width; ++x) {
-        if (!o[x] || g[x] > result.flat_threshold) continue;
-        Pixel p;
-        for (size_t i = 0; i < J.size(); ++i) {
-          const size_t slot = J.size() == 1 ? 1 : i;  // a grey JPEG is the channel G
-          const float v = J[i].at<float>(y, x);
-          p.jpeg[slot] = v;
-          if (jpeg_mask[i].at<std::uint8_t>(y, x)) p.jpeg_contaminated |= std::uint8_t(1u << slot);
-          if (jpeg_clip[i] && v >= *jpeg_clip[i] - 1e-4) p.jpeg_plateau |= std::uint8_t(1u << slot);
-        }
-        if (J.size() == 1) p.jpeg[0] = p.jpeg[2] = p.jpeg[1];
-        for (size_t k = 0; k < L.size(); ++k) {
-          const float v = L[k].at<float>(y, x);
-          p.linear[k] = v;
-          if (linear_mask[k].at<std::uint8_t>(y, x)) p.linear_contaminated = true;
-          if (linear_clip[k] && v >= *linear_clip[k] - 1e-4) p.linear_plateau |= std::uint8_t(1u << k);
-        }
-        p.fold = static_cast<std::uint8_t>((x / bw + 2 * (y / bh)) % 4);
-        pixels.push_back(p);
-      }
-    }
-    result.flat_pixels = static_cast<long long>(pixels.size());
-    if (static_cast<int>(pixels.size()) > options.max_pixels) {
-      const size_t stride = (pixels.size() + options.max_pixels - 1) / options.max_pixels;
-      std::vector<Pixel> kept;
-      kept.reserve(pixels.size() / stride + 1);
-      for (size_t i = 0; i < pixels.size(); i += stride) kept.push_back(pixels[i]);
-      pixels.swap(kept);
+  const int bw = (f.jw.width + options.fold_grid - 1) / options.fold_grid;
+  const int bh = (f.jw.height + options.fold_grid - 1) / options.fold_grid;
+  for (int y = 0; y < f.jw.height; ++y) {
+    const auto* o = f.overlap.ptr<std::uint8_t>(y);
+    const float* g = f.gradient.ptr<float>(y);
+    for (int x = 0; x < f.jw.width; ++x) {
+      if (!o[x] || g[x] > result.flat_threshold) continue;
+      pixels.push_back(samplePixel(f, x, y, bw, bh));
     }
   }
-  // Per channel: fit, alternate with the mixing row, diagnose (steps 5–6). Channels are independent.
+  result.flat_pixels = static_cast<long long>(pixels.size());
+  if (static_cast<int>(pixels.size()) > options.max_pixels) {
+    const size_t stride = (pixels.size() + options.max_pixels - 1) / options.max_pixels;
+    std::vector<Pixel> kept;
+    kept.reserve(pixels.size() / stride + 1);
+    for (size_t i = 0; i < pixels.size(); i += stride) kept.push_back(pixels[i]);
+    pixels.swap(kept);
+  }
+  return pixels;
+}
+
+// One channel (steps 5–6): fit, alternate with the mixing row, diagnose.
+RawTruthChannel measureChannel(const std::vector<Pixel>& pixels, const ChannelJob& job, int linear_planes, double clip,
+                               const RawTruthOptions& options) {
+  RawTruthChannel out;
+  out.channel = job.name;
+  std::vector<double> mix(static_cast<size_t>(linear_planes), 0.0);
+  const int own = linear_planes == 1 ? 0 : (job.name == "R" ? 0 : job.name == "G" ? 1 : 2);
+  mix[static_cast<size_t>(own)] = 1;
+  // The alternation works with a fixed K = 4 curve (Grossberg & Nayar: 3–5 terms reach DoRF accuracy); the
+  // final fit chooses K by cross-validation over the spatial folds.
+  const int rounds = options.colour_matrix && linear_planes == 3 ? options.matrix_rounds : 0;
+  const int alternation_terms = std::clamp(4, std::max(1, options.fit.min_terms), options.fit.max_terms);
+  ChannelFit fit = fitChannel(pixels, job, mix, clip, options, rounds > 0 ? alternation_terms : 0);
+  for (int round = 0; round < rounds; ++round) {
+    mix = fitMix(pixels, job, mix, fit.fit, options);
+    fit = fitChannel(pixels, job, mix, clip, options, round + 1 < rounds ? alternation_terms : 0);
+  }
+  const double s = fit.fit.scales.empty() || !(fit.fit.scales[0] > 0) ? 1.0 : fit.fit.scales[0];
+  out.fit = fit.fit;
+  out.mix = mix;
+  out.bins = fit.bins;
+  out.censored_pixels = fit.censored;
+  diagnose(pixels, job, out, options);
+  for (auto& m : out.mix) m /= s;  // M_c·RAW ≈ φ(JPEG_c)
+  return out;
+}
+
+// Per channel (steps 5–6), in parallel: the channels are independent. The first failure is rethrown.
+void measureChannels(const std::vector<Pixel>& pixels, const std::vector<ChannelJob>& jobs, const RawTruthFrames& f,
+                     bool jpeg_colour, const RawTruthOptions& options, RawTruthResult& result) {
   result.channels.resize(jobs.size());
+  const int linear_planes = static_cast<int>(f.linear_native.size());
   std::exception_ptr failure;
   std::mutex failure_lock;
   cv::parallel_for_(cv::Range(0, static_cast<int>(jobs.size())), [&](const cv::Range& range) {
     for (int j = range.start; j < range.end; ++j) {
       try {
         const ChannelJob& job = jobs[static_cast<size_t>(j)];
-        RawTruthChannel& out = result.channels[static_cast<size_t>(j)];
-        out.channel = job.name;
-        std::vector<double> mix(static_cast<size_t>(linear_planes), 0.0);
-        const int own = linear_planes == 1 ? 0 : (job.name == "R" ? 0 : job.name == "G" ? 1 : 2);
-        mix[static_cast<size_t>(own)] = 1;
-        const auto jc = jpeg_clip[static_cast<size_t>(jpeg_colour ? job.jpeg_index : 0)];
-        const double clip = jc ? *jc : 1.0;
-        // The alternation works with a fixed K = 4 curve (Grossberg & Nayar: 3–5 terms reach DoRF accuracy); the
-        // final fit chooses K by cross-validation over the spatial folds.
-        const int rounds = options.colour_matrix && linear_planes == 3 ? options.matrix_rounds : 0;
-        const int alternation_terms = std::clamp(4, std::max(1, options.fit.min_terms), options.fit.max_terms);
-        ChannelFit fit = fitChannel(pixels, job, mix, clip, options, rounds > 0 ? alternation_terms : 0);
-        for (int round = 0; round < rounds; ++round) {
-          mix = fitMix(pixels, job, mix, fit.fit, options);
-          fit = fitChannel(pixels, job, mix, clip, options, round + 1 < rounds ? alternation_terms : 0);
-        }
-        const double s = fit.fit.scales.empty() || !(fit.fit.scales[0] > 0) ? 1.0 : fit.fit.scales[0];
-        out.fit = fit.fit;
-        out.mix = mix;
-        out.bins = fit.bins;
-        out.censored_pixels = fit.censored;
-        diagnose(pixels, job, out, options);
-        for (auto& m : out.mix) m /= s;  // M_c·RAW ≈ φ(JPEG_c)
+        const auto jc = f.jpeg_clip[static_cast<size_t>(jpeg_colour ? job.jpeg_index : 0)];
+        result.channels[static_cast<size_t>(j)] = measureChannel(pixels, job, linear_planes, jc ? *jc : 1.0, options);
       } catch (...) {
         std::lock_guard<std::mutex> lock(failure_lock);
         if (!failure) failure = std::current_exception();
@@ -579,8 +626,10 @@ RawTruthResult computeRawTruth(const cv::Mat& jpeg, const cv::Mat& linear, const
     }
   });
   if (failure) std::rethrow_exception(failure);
+}
 
-  // Checks (step 7).
+// Checks (step 7): every channel explains the linear values, and the mean effective exponent is a camera's.
+void checkLinearity(const RawTruthOptions& options, RawTruthResult& result) {
   double gamma_sum = 0;
   int gamma_count = 0;
   for (const auto& c : result.channels) {
@@ -607,6 +656,25 @@ RawTruthResult computeRawTruth(const cv::Mat& jpeg, const cv::Mat& linear, const
                   options.gamma_from, gamma_sum / gamma_count, options.min_gamma);
     throw InvalidInput(buffer);
   }
+}
+
+}  // namespace
+
+RawTruthResult computeRawTruth(const cv::Mat& jpeg, const cv::Mat& linear, const RawTruthOptions& options) {
+  options.check();
+  checkInputs(jpeg, linear);
+  RawTruthResult result;
+  const bool jpeg_colour = jpeg.channels() >= 3;
+  const std::vector<ChannelJob> jobs = channelJobs(jpeg_colour, options);
+  RawTruthFrames frames;
+  readNativePlanes(jpeg, linear, options, frames, result);
+  makeWorkingJpeg(jpeg, linear, options, frames, result);
+  orientAndRegister(jpeg, linear, options, frames, result);
+  intoJpegFrame(options, frames, result);
+  measureFlatness(options, frames, result);
+  const std::vector<Pixel> pixels = samplePixels(options, frames, result);
+  measureChannels(pixels, jobs, frames, jpeg_colour, options, result);
+  checkLinearity(options, result);
   return result;
 }
 

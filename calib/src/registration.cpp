@@ -172,6 +172,120 @@ cv::Mat overlapMaskInSharp(cv::Size sharp_size, const cv::Mat& homography, cv::S
   return overlapMask(blurred_size, homography.inv(), sharp_size, margin);
 }
 
+namespace {
+
+// Step 1 of registerPair: AKAZE features, ratio-test matches and RANSAC (similarity for the Euclidean model, whose ECC
+// step drops the scale). Returns the working-scale homography sharp → blurred, or an empty matrix when the features do
+// not give a sane one; fills the keypoint, match and inlier counts and the method of `result`.
+cv::Mat featureHomography(const cv::Mat& a, const cv::Mat& b, const RegistrationOptions& options,
+                          RegistrationResult& result) {
+  cv::Mat H;
+  auto akaze = cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0005f);
+  std::vector<cv::KeyPoint> ka, kb;
+  cv::Mat da, db;
+  akaze->detectAndCompute(a, cv::noArray(), ka, da);
+  akaze->detectAndCompute(b, cv::noArray(), kb, db);
+  auto keep = [&](std::vector<cv::KeyPoint>& kp, cv::Mat& d, const cv::Mat& img) {
+    if (static_cast<int>(kp.size()) > options.max_features) {
+      cv::KeyPointsFilter::retainBest(kp, options.max_features);
+      akaze->compute(img, kp, d);
+    }
+  };
+  keep(ka, da, a);
+  keep(kb, db, b);
+  result.keypoints_sharp = static_cast<int>(ka.size());
+  result.keypoints_blurred = static_cast<int>(kb.size());
+  if (ka.size() < 8 || kb.size() < 8) return H;
+  cv::BFMatcher matcher(cv::NORM_HAMMING);
+  std::vector<std::vector<cv::DMatch>> knn;
+  matcher.knnMatch(da, db, knn, 2);
+  std::vector<cv::Point2f> pa, pb;
+  for (const auto& m : knn) {
+    if (m.size() == 2 && m[0].distance < options.match_ratio * m[1].distance) {
+      pa.push_back(ka[m[0].queryIdx].pt);
+      pb.push_back(kb[m[0].trainIdx].pt);
+    }
+  }
+  result.matches = static_cast<int>(pa.size());
+  if (pa.size() < 8) return H;
+  std::vector<uchar> inlier_mask;
+  cv::Mat candidate;
+  if (options.motion == RegistrationMotion::homography) {
+    candidate = cv::findHomography(pa, pb, cv::RANSAC, options.ransac_threshold, inlier_mask, 4000, 0.999);
+  } else {
+    const cv::Mat A = options.motion == RegistrationMotion::affine
+                          ? cv::estimateAffine2D(pa, pb, inlier_mask, cv::RANSAC, options.ransac_threshold, 4000, 0.999)
+                          : cv::estimateAffinePartial2D(pa, pb, inlier_mask, cv::RANSAC, options.ransac_threshold,
+                                                        4000, 0.999);
+    if (!A.empty()) {
+      candidate = cv::Mat::eye(3, 3, CV_64F);
+      A.copyTo(candidate.rowRange(0, 2));
+    }
+  }
+  const int inliers = candidate.empty() ? 0 : cv::countNonZero(inlier_mask);
+  if (inliers >= options.min_inliers && saneHomography(candidate)) {
+    H = candidate;
+    result.inliers = inliers;
+    result.method = "features+ransac";
+  }
+  return H;
+}
+
+// Step 2 of registerPair, the fallback: phase correlation (translation) on the normalised copies.
+cv::Mat phaseHomography(const cv::Mat& a, const cv::Mat& b) {
+  cv::Mat fa, fb;
+  cv::Size common(std::min(a.cols, b.cols), std::min(a.rows, b.rows));
+  a(cv::Rect(0, 0, common.width, common.height)).convertTo(fa, CV_64F);
+  b(cv::Rect(0, 0, common.width, common.height)).convertTo(fb, CV_64F);
+  cv::Mat window;
+  cv::createHanningWindow(window, common, CV_64F);
+  double response = 0;
+  const cv::Point2d t = cv::phaseCorrelate(fa, fb, window, &response);
+  cv::Mat H = cv::Mat::eye(3, 3, CV_64F);
+  H.at<double>(0, 2) = t.x;
+  H.at<double>(1, 2) = t.y;
+  return H;
+}
+
+// Step 3 of registerPair: ECC refinement of H (template = blurred, input = sharp; the warp maps blurred → sharp
+// coordinates). Replaces H and marks `result` only when ECC converges to a sane homography.
+void refineByEcc(const cv::Mat& fa, const cv::Mat& fb, int motion, const RegistrationOptions& options, cv::Mat& H,
+                 RegistrationResult& result) {
+  try {
+    const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options.ecc_iterations,
+                                    options.ecc_epsilon);
+    cv::Mat refined = toEccWarp(H.inv(), motion);
+    result.ecc_correlation = cv::findTransformECC(fb, fa, refined, motion, criteria, cv::noArray(), options.ecc_smoothing);
+    const cv::Mat Hr = fromEccWarp(refined, motion).inv();
+    if (saneHomography(Hr)) {
+      H = Hr;
+      result.ecc_refined = true;
+      result.method += "+ecc";
+    }
+  } catch (const cv::Exception&) {
+    // ECC did not converge: keep the feature/phase estimate, judged below by its correlation.
+  }
+}
+
+// Correlation of the alignment H of the working copies (smoothed, like ECC measures it), over their overlap.
+double alignmentCorrelation(const cv::Mat& fa, const cv::Mat& fb, const cv::Mat& H, const RegistrationOptions& options) {
+  cv::Mat warped, ga, gb;
+  cv::warpPerspective(fa, warped, H, fb.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0));
+  const cv::Mat mask = overlapMask(fa.size(), H, fb.size(), 2);
+  cv::GaussianBlur(warped, ga, cv::Size(options.ecc_smoothing, options.ecc_smoothing), 0);
+  cv::GaussianBlur(fb, gb, cv::Size(options.ecc_smoothing, options.ecc_smoothing), 0);
+  cv::Scalar ma, sa, mb, sb;
+  cv::meanStdDev(ga, ma, sa, mask);
+  cv::meanStdDev(gb, mb, sb, mask);
+  cv::Mat prod = (ga - ma[0]).mul(gb - mb[0]);
+  const double n = std::max(1, cv::countNonZero(mask));
+  cv::Mat masked;
+  prod.copyTo(masked, mask);
+  return cv::sum(masked)[0] / n / std::max(1e-12, sa[0] * sb[0]);
+}
+
+}  // namespace
+
 RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, const RegistrationOptions& options) {
   options.check();
   if (sharp.empty() || blurred.empty()) throw InvalidInput("registration: empty image");
@@ -186,112 +300,16 @@ RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, co
   }
   const int motion = eccMotion(options.motion);
 
-  // 1. Features + RANSAC (similarity for the Euclidean model, whose ECC step drops the scale).
-  cv::Mat H;  // working scale, sharp → blurred
-  {
-    auto akaze = cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0005f);
-    std::vector<cv::KeyPoint> ka, kb;
-    cv::Mat da, db;
-    akaze->detectAndCompute(a, cv::noArray(), ka, da);
-    akaze->detectAndCompute(b, cv::noArray(), kb, db);
-    auto keep = [&](std::vector<cv::KeyPoint>& kp, cv::Mat& d, const cv::Mat& img) {
-      if (static_cast<int>(kp.size()) > options.max_features) {
-        cv::KeyPointsFilter::retainBest(kp, options.max_features);
-        akaze->compute(img, kp, d);
-      }
-    };
-    keep(ka, da, a);
-    keep(kb, db, b);
-    result.keypoints_sharp = static_cast<int>(ka.size());
-    result.keypoints_blurred = static_cast<int>(kb.size());
-    if (ka.size() >= 8 && kb.size() >= 8) {
-      cv::BFMatcher matcher(cv::NORM_HAMMING);
-      std::vector<std::vector<cv::DMatch>> knn;
-      matcher.knnMatch(da, db, knn, 2);
-      std::vector<cv::Point2f> pa, pb;
-      for (const auto& m : knn) {
-        if (m.size() == 2 && m[0].distance < options.match_ratio * m[1].distance) {
-          pa.push_back(ka[m[0].queryIdx].pt);
-          pb.push_back(kb[m[0].trainIdx].pt);
-        }
-      }
-      result.matches = static_cast<int>(pa.size());
-      if (pa.size() >= 8) {
-        std::vector<uchar> inlier_mask;
-        cv::Mat candidate;
-        if (options.motion == RegistrationMotion::homography) {
-          candidate = cv::findHomography(pa, pb, cv::RANSAC, options.ransac_threshold, inlier_mask, 4000, 0.999);
-        } else {
-          const cv::Mat A = options.motion == RegistrationMotion::affine
-                                ? cv::estimateAffine2D(pa, pb, inlier_mask, cv::RANSAC, options.ransac_threshold, 4000, 0.999)
-                                : cv::estimateAffinePartial2D(pa, pb, inlier_mask, cv::RANSAC, options.ransac_threshold,
-                                                              4000, 0.999);
-          if (!A.empty()) {
-            candidate = cv::Mat::eye(3, 3, CV_64F);
-            A.copyTo(candidate.rowRange(0, 2));
-          }
-        }
-        const int inliers = candidate.empty() ? 0 : cv::countNonZero(inlier_mask);
-        if (inliers >= options.min_inliers && saneHomography(candidate)) {
-          H = candidate;
-          result.inliers = inliers;
-          result.method = "features+ransac";
-        }
-      }
-    }
-  }
-  // 2. Fallback: phase correlation (translation) on the normalised copies.
+  cv::Mat H = featureHomography(a, b, options, result);  // working scale, sharp → blurred
   if (H.empty()) {
-    cv::Mat fa, fb;
-    cv::Size common(std::min(a.cols, b.cols), std::min(a.rows, b.rows));
-    a(cv::Rect(0, 0, common.width, common.height)).convertTo(fa, CV_64F);
-    b(cv::Rect(0, 0, common.width, common.height)).convertTo(fb, CV_64F);
-    cv::Mat window;
-    cv::createHanningWindow(window, common, CV_64F);
-    double response = 0;
-    const cv::Point2d t = cv::phaseCorrelate(fa, fb, window, &response);
-    H = cv::Mat::eye(3, 3, CV_64F);
-    H.at<double>(0, 2) = t.x;
-    H.at<double>(1, 2) = t.y;
+    H = phaseHomography(a, b);
     result.method = "phase";
   }
-  // 3. ECC refinement (template = blurred, input = sharp; the warp maps blurred → sharp coordinates).
   cv::Mat fa, fb;
   a.convertTo(fa, CV_32F, 1.0 / 255);
   b.convertTo(fb, CV_32F, 1.0 / 255);
-  if (options.refine_ecc || result.method == "phase") {
-    try {
-      const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options.ecc_iterations,
-                                      options.ecc_epsilon);
-      cv::Mat refined = toEccWarp(H.inv(), motion);
-      result.ecc_correlation =
-          cv::findTransformECC(fb, fa, refined, motion, criteria, cv::noArray(), options.ecc_smoothing);
-      const cv::Mat Hr = fromEccWarp(refined, motion).inv();
-      if (saneHomography(Hr)) {
-        H = Hr;
-        result.ecc_refined = true;
-        result.method += "+ecc";
-      }
-    } catch (const cv::Exception&) {
-      // ECC did not converge: keep the feature/phase estimate, judged below by its correlation.
-    }
-  }
-  if (!result.ecc_refined) {
-    // Correlation of the current alignment (smoothed, like ECC measures it).
-    cv::Mat warped, ga, gb;
-    cv::warpPerspective(fa, warped, H, fb.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0));
-    const cv::Mat mask = overlapMask(a.size(), H, b.size(), 2);
-    cv::GaussianBlur(warped, ga, cv::Size(options.ecc_smoothing, options.ecc_smoothing), 0);
-    cv::GaussianBlur(fb, gb, cv::Size(options.ecc_smoothing, options.ecc_smoothing), 0);
-    cv::Scalar ma, sa, mb, sb;
-    cv::meanStdDev(ga, ma, sa, mask);
-    cv::meanStdDev(gb, mb, sb, mask);
-    cv::Mat prod = (ga - ma[0]).mul(gb - mb[0]);
-    const double n = std::max(1, cv::countNonZero(mask));
-    cv::Mat masked;
-    prod.copyTo(masked, mask);
-    result.ecc_correlation = cv::sum(masked)[0] / n / std::max(1e-12, sa[0] * sb[0]);
-  }
+  if (options.refine_ecc || result.method == "phase") refineByEcc(fa, fb, motion, options, H, result);
+  if (!result.ecc_refined) result.ecc_correlation = alignmentCorrelation(fa, fb, H, options);
   result.method += std::string(" (") + toString(options.motion) + ")";
   result.homography = scaleMatrix(1.0 / s) * H * scaleMatrix(s);
   result.overlap_fraction = coverage(sharp.size(), result.homography, blurred.size());
