@@ -223,6 +223,386 @@ double since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
+// The inputs every case of `bench synthetic` shares, loaded once before the cases run.
+struct SyntheticCase {
+  int curve, kernel, level, image;
+};
+
+struct SyntheticSetup {
+  double variance_scale = 1.0;  // the --noise-units factor applied to kNoiseVariances
+  bool stand_ins = false;       // true when samples/camera_curves was absent
+  std::vector<Curve> curves;
+  std::vector<cv::Mat> images;
+  std::vector<cv::Mat> kernels;  // Levin kernels 1..8
+  std::vector<Variant> variants;
+  std::vector<SyntheticCase> cases;
+};
+
+Variant findVariant(const std::vector<Variant>& all, const std::string& name) {
+  for (const auto& v : all)
+    if (v.name == name) return v;
+  throw InvalidInput("bench: unknown variant '" + name + "'");
+}
+
+std::vector<Variant> selectVariants(const SyntheticArgs& args) {
+  std::vector<Variant> variants;
+  const auto all = allVariants();
+  if (args.method == "seed" || args.method == "both") variants.push_back(findVariant(all, "seed"));
+  if (args.method == "default" || args.method == "both") variants.push_back(findVariant(all, "default"));
+  for (const auto& name : args.variants)
+    if (std::none_of(variants.begin(), variants.end(), [&](const Variant& v) { return v.name == name; }))
+      variants.push_back(findVariant(all, name));
+  return variants;
+}
+
+// Every (curve, kernel, level) with the latent image rotating over them; --cases keeps a subset spread over all.
+std::vector<SyntheticCase> buildCases(const SyntheticArgs& args, int curve_count, int image_count) {
+  std::vector<SyntheticCase> cases;
+  for (int level = 0; level < 3; ++level)
+    for (int c = 0; c < curve_count; ++c)
+      for (int k = 0; k < 8; ++k) cases.push_back({c, k, level, (c + k) % image_count});
+  if (args.cases_limit > 0 && args.cases_limit < static_cast<int>(cases.size())) {
+    // spread the subset over curves, kernels and levels
+    std::vector<SyntheticCase> subset;
+    const double step = double(cases.size()) / args.cases_limit;
+    for (int i = 0; i < args.cases_limit; ++i) subset.push_back(cases[static_cast<std::size_t>(i * step)]);
+    cases = subset;
+  }
+  return cases;
+}
+
+SyntheticSetup loadSetup(const SyntheticArgs& args) {
+  SyntheticSetup setup;
+  if (args.noise_vars.size() == 3)
+    for (int i = 0; i < 3; ++i) kNoiseVariances[i] = args.noise_vars[i];
+  setup.variance_scale = args.noise_units == "8bit" ? 1.0 / (255.0 * 255.0) : 1.0;
+  setup.curves = loadCurves(args.curves, setup.stand_ins);
+  std::vector<std::string> image_paths = args.images;
+  if (image_paths.empty())
+    for (int i = 1; i <= 4; ++i) image_paths.push_back((io::samplesDirectory() / "levin09" / ("im" + std::to_string(i) + ".png")).string());
+  for (const auto& p : image_paths) setup.images.push_back(io::readGrayUnit(p));
+  for (int k = 1; k <= 8; ++k) setup.kernels.push_back(io::kernelFromSpec("levin:" + std::to_string(k)));
+  setup.variants = selectVariants(args);
+  setup.cases = buildCases(args, static_cast<int>(setup.curves.size()), static_cast<int>(setup.images.size()));
+  return setup;
+}
+
+// One variant's fit of one simulated pair, scored against the true curve.
+void fitVariant(const Variant& v, const SimulationResult& pair, const cv::Mat& kernel, const std::vector<double>& truth,
+                CaseResult& out) {
+  CrfFitOptions options = v.options;
+  options.threads = 1;
+  if (v.true_sigma) options.noise_sigma = out.sigma_true;
+  const auto t0 = std::chrono::steady_clock::now();
+  try {
+    const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
+    out.seconds[v.name] = since(t0);
+    out.rmse[v.name] = curveRmse(fit.inverse_crf, truth);
+    out.shape[v.name] = shapeRmse(fit.inverse_crf, truth);
+    out.phi[v.name] = fit.inverse_crf;
+    out.chosen[v.name] = fit.chosen;
+    if (v.name == "default") out.sigma_est = fit.noise_sigma;
+  } catch (const InvalidInput&) {
+    // a rejected pair (e.g. too few usable pixels): counted, scored as the gamma 2.2 curve
+    out.seconds[v.name] = since(t0);
+    const auto fallback = sampleInverse(GammaModel{2.2});
+    out.rmse[v.name] = curveRmse(fallback, truth);
+    out.shape[v.name] = shapeRmse(fallback, truth);
+    out.phi[v.name] = fallback;
+    out.chosen[v.name] = "rejected";
+  }
+}
+
+// The cases, run in parallel: each simulates its pair and fits it with every variant.
+struct SyntheticRun {
+  const SyntheticArgs& args;
+  const SyntheticSetup& setup;
+  Progress& progress;
+  std::vector<CaseResult> results;
+  std::atomic<int> done{0};
+  std::mutex progress_mutex;
+  std::string failure;  // the last case's exception text, if any failed
+
+  SyntheticRun(const SyntheticArgs& a, const SyntheticSetup& s, Progress& p) : args(a), setup(s), progress(p) {}
+
+  void runCase(int i) {
+    const SyntheticCase& cs = setup.cases[i];
+    CaseResult& out = results[i];
+    out.curve = cs.curve;
+    out.kernel = cs.kernel;
+    out.level = cs.level;
+    out.image = cs.image;
+    try {
+      SimulationOptions sim;
+      sim.noise_variance = kNoiseVariances[cs.level] * setup.variance_scale;
+      sim.ratio = args.ratio;
+      sim.seed = 1000003ULL * (cs.curve + 1) + 1009ULL * (cs.kernel + 1) + cs.level + 1;
+      const ResponseModel truth = TableModel{setup.curves[cs.curve].phi};
+      const SimulationResult pair = simulatePair(setup.images[cs.image], truth, setup.kernels[cs.kernel], sim);
+      out.sigma_true = std::sqrt(sim.noise_variance);
+      for (const Variant& v : setup.variants)
+        fitVariant(v, pair, setup.kernels[cs.kernel], setup.curves[cs.curve].phi, out);
+    } catch (const std::exception& e) {
+      std::lock_guard lock(progress_mutex);
+      failure = e.what();
+    }
+    const int n = ++done;
+    std::lock_guard lock(progress_mutex);
+    progress.update(double(n) / setup.cases.size(), std::to_string(n) + "/" + std::to_string(setup.cases.size()));
+  }
+
+  // Returns the wall time in seconds.
+  double runAll() {
+    results.assign(setup.cases.size(), CaseResult{});
+    progress.stage("bench synthetic: " + std::to_string(setup.cases.size()) + " cases x " +
+                   std::to_string(setup.variants.size()) + " methods");
+    const auto t_all = std::chrono::steady_clock::now();
+    cv::parallel_for_(
+        cv::Range(0, static_cast<int>(setup.cases.size())),
+        [this](const cv::Range& range) {
+          for (int i = range.start; i < range.end; ++i) runCase(i);
+        },
+        std::max(1, args.threads) == 1 ? 1.0 : static_cast<double>(setup.cases.size()));
+    const double wall = since(t_all);
+    progress.done();
+    if (!failure.empty()) throw Error("bench synthetic: a case failed: " + failure);
+    return wall;
+  }
+};
+
+std::string curveNames(const std::vector<Curve>& curves) {
+  std::string s;
+  for (const auto& c : curves) s += (s.empty() ? "" : ", ") + c.name;
+  return s;
+}
+
+void printSyntheticHeader(const SyntheticArgs& args, const SyntheticSetup& setup, double wall) {
+  std::printf("crfcal bench synthetic - seed Sec. 5 protocol: %zu CRFs x 8 Levin kernels x 3 noise variances on I "
+              "(%zu cases), %zu latent image(s)\n",
+              setup.curves.size(), setup.cases.size(), setup.images.size());
+  std::printf("curves: %s%s\n", setup.stand_ins ? "STAND-INS (samples/camera_curves absent): " : "",
+              curveNames(setup.curves).c_str());
+  const double to_levels = args.noise_units == "8bit" ? 1.0 : 255.0;  // σ in 8-bit levels
+  std::printf("noise: Gaussian on I with the variances below %s (sigma %.2g to %.2g of 255 levels)\n",
+              args.noise_units == "8bit" ? "in 8-bit levels^2 (I in [0,255])" : "for I in [0,1]",
+              std::sqrt(*std::min_element(kNoiseVariances, kNoiseVariances + 3)) * to_levels,
+              std::sqrt(*std::max_element(kNoiseVariances, kNoiseVariances + 3)) * to_levels);
+  std::printf("error: RMSE of phi over 1024 points of [0,1]; wall time %.1f s on %d thread(s)\n\n", wall, args.threads);
+  std::printf("%-20s %9s %9s %9s %9s %9s %10s %9s\n", "method", "noise var", "mean", "median", "max", "seed mean", "s/case",
+              "shape");
+}
+
+// One variant's row per noise level (printed), returned as the JSON "levels" array.
+nlohmann::json printVariantRows(const Variant& v, const std::vector<CaseResult>& results) {
+  nlohmann::json levels = nlohmann::json::array();
+  for (int level = 0; level < 3; ++level) {
+    std::vector<double> errs, shapes;
+    double secs = 0;
+    for (const auto& r : results)
+      if (r.level == level && r.rmse.count(v.name)) {
+        errs.push_back(r.rmse.at(v.name));
+        shapes.push_back(r.shape.at(v.name));
+        secs += r.seconds.at(v.name);
+      }
+    if (errs.empty()) continue;
+    const Stats s = stats(errs, secs);
+    const double shape = std::accumulate(shapes.begin(), shapes.end(), 0.0) / shapes.size();
+    std::printf("%-20s %9.3f %9.4f %9.4f %9.4f %9.4f %10.3f %9.4f\n", v.name.c_str(), kNoiseVariances[level], s.mean,
+                s.median, s.max, kSeedMean[level], s.seconds, shape);
+    levels.push_back({{"noise_var", kNoiseVariances[level]}, {"mean_rmse", s.mean}, {"median_rmse", s.median},
+                      {"max_rmse", s.max}, {"seconds_per_case", s.seconds}, {"cases", s.n},
+                      {"mean_shape_rmse", shape}});
+  }
+  return levels;
+}
+
+// The table (printed) and the JSON summary of it, per case included; the GGCM floor is the best GGCM fit of
+// each true curve.
+nlohmann::json printSyntheticTable(const SyntheticArgs& args, const SyntheticSetup& setup,
+                                   const std::vector<CaseResult>& results, double wall) {
+  std::vector<double> floor_rmse;
+  for (const auto& c : setup.curves) floor_rmse.push_back(ggcm::fitInverse(c.phi).rmse);
+  const double floor_mean = std::accumulate(floor_rmse.begin(), floor_rmse.end(), 0.0) / floor_rmse.size();
+
+  printSyntheticHeader(args, setup, wall);
+  nlohmann::json json;
+  json["cases"] = setup.cases.size();
+  json["curves"] = nlohmann::json::array();
+  for (const auto& c : setup.curves) json["curves"].push_back(c.name);
+  json["stand_in_curves"] = setup.stand_ins;
+  json["noise_units"] = args.noise_units;
+  json["seed_published_mean_rmse"] = {kSeedMean[0], kSeedMean[1], kSeedMean[2]};
+  json["ggcm_floor"] = {{"mean_rmse", floor_mean}, {"per_curve", floor_rmse}};
+  json["wall_seconds"] = wall;
+  for (const Variant& v : setup.variants) {
+    const nlohmann::json levels = printVariantRows(v, results);
+    if (v.name == "default") json["levels"] = levels;
+    else if (v.name == "seed") json["seed_method"] = levels;
+    json["variants"][v.name] = {{"description", v.description}, {"levels", levels}};
+  }
+  // Per case (for per-curve or paired comparisons of the variants).
+  json["per_case"] = nlohmann::json::array();
+  for (const auto& r : results)
+    json["per_case"].push_back({{"curve", setup.curves[r.curve].name}, {"kernel", r.kernel + 1}, {"image", r.image + 1},
+                                {"noise_var", kNoiseVariances[r.level]}, {"rmse", r.rmse}, {"shape_rmse", r.shape},
+                                {"chosen", r.chosen}});
+  std::printf("%-20s %9s %9.4f   (best GGCM fit of each true curve: the lower bound for GGCM fits)\n", "ggcm floor",
+              "-", floor_mean);
+  std::printf("shape: mean RMSE over x <= %.1f after the best common factor (phi's shape without the phi(1) = 1 "
+              "normalisation)\n", kShapeLimit);
+  return json;
+}
+
+// σ estimation accuracy, model choice and rejected pairs.
+void printSigmaAndChoices(const std::vector<Variant>& variants, const std::vector<CaseResult>& results) {
+  std::map<int, std::vector<double>> rel;
+  std::map<std::string, int> chosen;
+  for (const auto& r : results) {
+    if (r.sigma_est > 0) rel[r.level].push_back(r.sigma_est / r.sigma_true);
+    if (r.chosen.count("default")) ++chosen[r.chosen.at("default")];
+  }
+  for (auto& [level, v] : rel)
+    std::printf("default: estimated/true noise sigma at var %.3f: mean %.3f\n", kNoiseVariances[level],
+                std::accumulate(v.begin(), v.end(), 0.0) / v.size());
+  for (auto& [kind, n] : chosen) std::printf("default: model chosen %s in %d cases\n", kind.c_str(), n);
+  for (const Variant& v : variants) {
+    int rejected = 0;
+    for (const auto& r : results)
+      if (r.chosen.count(v.name) && r.chosen.at(v.name) == "rejected") ++rejected;
+    if (rejected) std::printf("%s: %d case(s) rejected by the fitter (scored as gamma 2.2)\n", v.name.c_str(), rejected);
+  }
+}
+
+// Mean time of `reps` evaluations of a level mixture.
+double timeMix(const LevelMixture& mixture, const std::vector<double>& lut, std::vector<double>& out, int reps) {
+  const auto t0 = std::chrono::steady_clock::now();
+  for (int i = 0; i < reps; ++i) mixture.mix(lut, out);
+  return since(t0) / reps;
+}
+
+// Speed: sparse level mixture vs direct convolution, and one fit of a 512x384 pair with a 27x27 kernel.
+void measureSpeed(const SyntheticSetup& setup, nlohmann::json& json) {
+  const std::vector<Curve>& curves = setup.curves;
+  cv::Mat big;
+  cv::resize(setup.images[0], big, cv::Size(512, 384), 0, 0, cv::INTER_CUBIC);
+  cv::min(cv::max(big, 0.0), 1.0, big);
+  const cv::Mat k27 = io::kernelFromSpec("levin:4");
+  SimulationOptions sim;
+  sim.noise_variance = 0.005;
+  const SimulationResult pair = simulatePair(big, TableModel{curves[0].phi}, k27, sim);
+  const ResponseCurve curve(TableModel{curves[0].phi});
+  const int reps = 20;
+  auto t0 = std::chrono::steady_clock::now();
+  for (int i = 0; i < reps; ++i) {
+    const cv::Mat blurred = convolve(curve.inverse(pair.sharp), k27);
+    (void)blurred;
+  }
+  const double direct = since(t0) / reps;
+  // the pixels the default fitter uses (B edges), mixture built once
+  const LevelImage levels = toLevels(pair.sharp, 256);
+  const cv::Rect inside = interiorRect(big.size(), k27);
+  const LocalRange range = localRange(pair.blurred, k27);
+  std::vector<cv::Point> pixels;
+  for (int y = inside.y; y < inside.y + inside.height; ++y)
+    for (int x = inside.x; x < inside.x + inside.width; ++x)
+      if (range.max.at<double>(y, x) - range.min.at<double>(y, x) > 0.02) pixels.emplace_back(x, y);
+  t0 = std::chrono::steady_clock::now();
+  const LevelMixture mixture = LevelMixture::build(levels, k27, pixels);
+  const double build = since(t0);
+  std::vector<double> lut = curve.inverseLut(8), out(pixels.size());
+  const double sparse = timeMix(mixture, lut, out, reps);
+  std::vector<cv::Point> sub = pixels;
+  if (sub.size() > 20000) {
+    std::vector<cv::Point> s2;
+    for (std::size_t i = 0; i < sub.size(); i += sub.size() / 20000 + 1) s2.push_back(sub[i]);
+    sub = s2;
+  }
+  const LevelMixture mixture_sub = LevelMixture::build(levels, k27, sub);
+  std::vector<double> out_sub(sub.size());
+  const double sparse_sub = timeMix(mixture_sub, lut, out_sub, reps);
+  CrfFitOptions options;
+  options.threads = 1;
+  t0 = std::chrono::steady_clock::now();
+  const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, k27, options);
+  const double fit_s = since(t0);
+  CrfFitOptions seed = CrfFitOptions::seed();
+  seed.threads = 1;
+  t0 = std::chrono::steady_clock::now();
+  const CrfFitResult fit_seed = fitInverseCrf(pair.sharp, pair.blurred, k27, seed);
+  const double seed_s = since(t0);
+  std::printf("\nspeed (512x384, 27x27 Levin kernel 4, one core):\n");
+  std::printf("  direct: phi LUT + full-image convolution per evaluation: %.3f ms\n", direct * 1e3);
+  std::printf("  sparse mixture over %zu edge pixels (%zu non-zeros, built once in %.1f ms): %.3f ms  (%.1fx)\n",
+              pixels.size(), mixture.nonZeros(), build * 1e3, sparse * 1e3, direct / sparse);
+  std::printf("  sparse mixture over the %zu pixels the default keeps: %.3f ms  (%.1fx)\n", sub.size(),
+              sparse_sub * 1e3, direct / sparse_sub);
+  std::printf("  one fit, crfcal default: %.3f s (%d evaluations, phi RMSE %.4f); seed method: %.3f s (%d evaluations, "
+              "phi RMSE %.4f)\n",
+              fit_s, fit.evaluations, curveRmse(fit.inverse_crf, curves[0].phi), seed_s, fit_seed.evaluations,
+              curveRmse(fit_seed.inverse_crf, curves[0].phi));
+  json["speed"] = {{"direct_convolution_ms", direct * 1e3}, {"sparse_mixture_ms", sparse * 1e3},
+                   {"sparse_mixture_default_pixels_ms", sparse_sub * 1e3}, {"speedup", direct / sparse},
+                   {"speedup_default_pixels", direct / sparse_sub}, {"fit_default_seconds", fit_s},
+                   {"fit_seed_seconds", seed_s}, {"edge_pixels", pixels.size()}};
+}
+
+// Fig. 5 left: the estimates of the first curve over the 8 kernels, per variant and noise level.
+void plotEstimates(io::OutputDirectory& out, const Variant& v, const SyntheticSetup& setup,
+                   const std::vector<CaseResult>& results) {
+  const int curve = 0;
+  for (int level = 0; level < 3; ++level) {
+    std::vector<io::PlotSeries> series;
+    std::vector<double> x(kCurveSamples);
+    for (int i = 0; i < kCurveSamples; ++i) x[i] = double(i) / (kCurveSamples - 1);
+    int count = 0;
+    for (const auto& r : results)
+      if (r.curve == curve && r.level == level && r.phi.count(v.name)) {
+        io::PlotSeries s{x, r.phi.at(v.name), cv::Scalar(200, 80, 0), count == 0 ? "estimated (8 kernels)" : "", 1};
+        series.push_back(s);
+        ++count;
+      }
+    if (count == 0) continue;
+    series.push_back({x, setup.curves[curve].phi, cv::Scalar(0, 0, 220), "true " + setup.curves[curve].name, 2});
+    io::PlotOptions po;
+    std::ostringstream title;
+    title << v.name << ": noise var " << kNoiseVariances[level];
+    po.title = title.str();
+    po.x_label = "intensity";
+    po.y_label = "phi (irradiance)";
+    po.x_min = 0; po.x_max = 1; po.y_min = 0; po.y_max = 1;
+    io::writePlot(out.file("fig5_" + v.name + "_var" + std::to_string(level) + ".png"), series, po);
+  }
+}
+
+// Fig. 5 right: the mean error per curve, one series per noise level.
+void plotErrorPerCurve(io::OutputDirectory& out, const Variant& v, const SyntheticSetup& setup,
+                       const std::vector<CaseResult>& results) {
+  std::vector<io::PlotSeries> per;
+  for (int level = 0; level < 3; ++level) {
+    io::PlotSeries s;
+    s.color = io::seriesColor(level);
+    std::ostringstream label;
+    label << "var " << kNoiseVariances[level];
+    s.label = label.str();
+    s.markers = false;
+    for (int c = 0; c < static_cast<int>(setup.curves.size()); ++c) {
+      std::vector<double> e;
+      for (const auto& r : results)
+        if (r.curve == c && r.level == level && r.rmse.count(v.name)) e.push_back(r.rmse.at(v.name));
+      if (e.empty()) continue;
+      s.x.push_back(c + 1);
+      s.y.push_back(std::accumulate(e.begin(), e.end(), 0.0) / e.size());
+    }
+    if (!s.x.empty()) per.push_back(s);
+  }
+  io::PlotOptions po;
+  po.title = v.name + ": mean RMSE per CRF";
+  po.x_label = "CRF";
+  po.y_label = "mean phi RMSE";
+  po.y_min = 0;
+  if (!per.empty()) io::writePlot(out.file("fig5_" + v.name + "_rmse_per_crf.png"), per, po);
+}
+
 int runSynthetic(const SyntheticArgs& args) {
   // Decided before the computation: a refused or unwritable output fails at once.
   std::vector<fs::path> inputs(args.images.begin(), args.images.end());
@@ -232,321 +612,21 @@ int runSynthetic(const SyntheticArgs& args) {
   std::optional<io::OutputDirectory> plots;
   if (!args.plot.empty()) plots.emplace(args.plot, policy);
   Progress progress(args.quiet);
-  if (args.noise_vars.size() == 3)
-    for (int i = 0; i < 3; ++i) kNoiseVariances[i] = args.noise_vars[i];
-  const double variance_scale = args.noise_units == "8bit" ? 1.0 / (255.0 * 255.0) : 1.0;
-  bool stand_ins = false;
-  const std::vector<Curve> curves = loadCurves(args.curves, stand_ins);
-  std::vector<std::string> image_paths = args.images;
-  if (image_paths.empty())
-    for (int i = 1; i <= 4; ++i) image_paths.push_back((io::samplesDirectory() / "levin09" / ("im" + std::to_string(i) + ".png")).string());
-  std::vector<cv::Mat> images;
-  for (const auto& p : image_paths) images.push_back(io::readGrayUnit(p));
-  std::vector<cv::Mat> kernels;
-  for (int k = 1; k <= 8; ++k) kernels.push_back(io::kernelFromSpec("levin:" + std::to_string(k)));
+  const SyntheticSetup setup = loadSetup(args);
 
-  // Variants to run.
-  std::vector<Variant> variants;
-  const auto all = allVariants();
-  auto find = [&](const std::string& name) {
-    for (const auto& v : all)
-      if (v.name == name) return v;
-    throw InvalidInput("bench: unknown variant '" + name + "'");
-  };
-  if (args.method == "seed" || args.method == "both") variants.push_back(find("seed"));
-  if (args.method == "default" || args.method == "both") variants.push_back(find("default"));
-  for (const auto& name : args.variants)
-    if (std::none_of(variants.begin(), variants.end(), [&](const Variant& v) { return v.name == name; }))
-      variants.push_back(find(name));
+  SyntheticRun run(args, setup, progress);
+  const double wall = run.runAll();
 
-  struct Case {
-    int curve, kernel, level, image;
-  };
-  std::vector<Case> cases;
-  for (int level = 0; level < 3; ++level)
-    for (int c = 0; c < static_cast<int>(curves.size()); ++c)
-      for (int k = 0; k < 8; ++k) cases.push_back({c, k, level, (c + k) % static_cast<int>(images.size())});
-  if (args.cases_limit > 0 && args.cases_limit < static_cast<int>(cases.size())) {
-    // spread the subset over curves, kernels and levels
-    std::vector<Case> subset;
-    const double step = double(cases.size()) / args.cases_limit;
-    for (int i = 0; i < args.cases_limit; ++i) subset.push_back(cases[static_cast<std::size_t>(i * step)]);
-    cases = subset;
-  }
-
-  std::vector<CaseResult> results(cases.size());
-  std::atomic<int> done{0};
-  std::mutex progress_mutex;
-  progress.stage("bench synthetic: " + std::to_string(cases.size()) + " cases x " + std::to_string(variants.size()) +
-                 " methods");
-  const auto t_all = std::chrono::steady_clock::now();
-  std::string failure;
-  cv::parallel_for_(
-      cv::Range(0, static_cast<int>(cases.size())),
-      [&](const cv::Range& range) {
-        for (int i = range.start; i < range.end; ++i) {
-          const Case& cs = cases[i];
-          CaseResult& out = results[i];
-          out.curve = cs.curve;
-          out.kernel = cs.kernel;
-          out.level = cs.level;
-          out.image = cs.image;
-          try {
-            SimulationOptions sim;
-            sim.noise_variance = kNoiseVariances[cs.level] * variance_scale;
-            sim.ratio = args.ratio;
-            sim.seed = 1000003ULL * (cs.curve + 1) + 1009ULL * (cs.kernel + 1) + cs.level + 1;
-            const ResponseModel truth = TableModel{curves[cs.curve].phi};
-            const SimulationResult pair = simulatePair(images[cs.image], truth, kernels[cs.kernel], sim);
-            out.sigma_true = std::sqrt(sim.noise_variance);
-            for (const Variant& v : variants) {
-              CrfFitOptions options = v.options;
-              options.threads = 1;
-              if (v.true_sigma) options.noise_sigma = out.sigma_true;
-              const auto t0 = std::chrono::steady_clock::now();
-              try {
-                const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, kernels[cs.kernel], options);
-                out.seconds[v.name] = since(t0);
-                out.rmse[v.name] = curveRmse(fit.inverse_crf, curves[cs.curve].phi);
-                out.shape[v.name] = shapeRmse(fit.inverse_crf, curves[cs.curve].phi);
-                out.phi[v.name] = fit.inverse_crf;
-                out.chosen[v.name] = fit.chosen;
-                if (v.name == "default") out.sigma_est = fit.noise_sigma;
-              } catch (const InvalidInput&) {
-                // a rejected pair (e.g. too few usable pixels): counted, scored as the gamma 2.2 curve
-                out.seconds[v.name] = since(t0);
-                const auto fallback = sampleInverse(GammaModel{2.2});
-                out.rmse[v.name] = curveRmse(fallback, curves[cs.curve].phi);
-                out.shape[v.name] = shapeRmse(fallback, curves[cs.curve].phi);
-                out.phi[v.name] = fallback;
-                out.chosen[v.name] = "rejected";
-              }
-            }
-          } catch (const std::exception& e) {
-            std::lock_guard lock(progress_mutex);
-            failure = e.what();
-          }
-          const int n = ++done;
-          std::lock_guard lock(progress_mutex);
-          progress.update(double(n) / cases.size(), std::to_string(n) + "/" + std::to_string(cases.size()));
-        }
-      },
-      std::max(1, args.threads) == 1 ? 1.0 : static_cast<double>(cases.size()));
-  const double wall = since(t_all);
-  progress.done();
-  if (!failure.empty()) throw Error("bench synthetic: a case failed: " + failure);
-
-  // GGCM representational floor: best GGCM fit of each true curve.
-  std::vector<double> floor_rmse;
-  for (const auto& c : curves) {
-    const auto fit = ggcm::fitInverse(c.phi);
-    floor_rmse.push_back(fit.rmse);
-  }
-  const double floor_mean = std::accumulate(floor_rmse.begin(), floor_rmse.end(), 0.0) / floor_rmse.size();
-
-  // Table.
-  std::printf("crfcal bench synthetic - seed Sec. 5 protocol: %zu CRFs x 8 Levin kernels x 3 noise variances on I "
-              "(%zu cases), %zu latent image(s)\n",
-              curves.size(), cases.size(), images.size());
-  std::printf("curves: %s%s\n", stand_ins ? "STAND-INS (samples/camera_curves absent): " : "", [&] {
-    std::string s;
-    for (const auto& c : curves) s += (s.empty() ? "" : ", ") + c.name;
-    return s;
-  }().c_str());
-  {
-    const double to_levels = args.noise_units == "8bit" ? 1.0 : 255.0;  // σ in 8-bit levels
-    std::printf("noise: Gaussian on I with the variances below %s (sigma %.2g to %.2g of 255 levels)\n",
-                args.noise_units == "8bit" ? "in 8-bit levels^2 (I in [0,255])" : "for I in [0,1]",
-                std::sqrt(*std::min_element(kNoiseVariances, kNoiseVariances + 3)) * to_levels,
-                std::sqrt(*std::max_element(kNoiseVariances, kNoiseVariances + 3)) * to_levels);
-  }
-  std::printf("error: RMSE of phi over 1024 points of [0,1]; wall time %.1f s on %d thread(s)\n\n", wall, args.threads);
-  std::printf("%-20s %9s %9s %9s %9s %9s %10s %9s\n", "method", "noise var", "mean", "median", "max", "seed mean", "s/case",
-              "shape");
-  nlohmann::json json;
-  json["cases"] = cases.size();
-  json["curves"] = nlohmann::json::array();
-  for (const auto& c : curves) json["curves"].push_back(c.name);
-  json["stand_in_curves"] = stand_ins;
-  json["noise_units"] = args.noise_units;
-  json["seed_published_mean_rmse"] = {kSeedMean[0], kSeedMean[1], kSeedMean[2]};
-  json["ggcm_floor"] = {{"mean_rmse", floor_mean}, {"per_curve", floor_rmse}};
-  json["wall_seconds"] = wall;
-  for (const Variant& v : variants) {
-    nlohmann::json levels = nlohmann::json::array();
-    for (int level = 0; level < 3; ++level) {
-      std::vector<double> errs, shapes;
-      double secs = 0;
-      for (const auto& r : results)
-        if (r.level == level && r.rmse.count(v.name)) {
-          errs.push_back(r.rmse.at(v.name));
-          shapes.push_back(r.shape.at(v.name));
-          secs += r.seconds.at(v.name);
-        }
-      if (errs.empty()) continue;
-      const Stats s = stats(errs, secs);
-      const double shape = std::accumulate(shapes.begin(), shapes.end(), 0.0) / shapes.size();
-      std::printf("%-20s %9.3f %9.4f %9.4f %9.4f %9.4f %10.3f %9.4f\n", v.name.c_str(), kNoiseVariances[level], s.mean,
-                  s.median, s.max, kSeedMean[level], s.seconds, shape);
-      levels.push_back({{"noise_var", kNoiseVariances[level]}, {"mean_rmse", s.mean}, {"median_rmse", s.median},
-                        {"max_rmse", s.max}, {"seconds_per_case", s.seconds}, {"cases", s.n},
-                        {"mean_shape_rmse", shape}});
-    }
-    if (v.name == "default") json["levels"] = levels;
-    else if (v.name == "seed") json["seed_method"] = levels;
-    json["variants"][v.name] = {{"description", v.description}, {"levels", levels}};
-  }
-  // Per case (for per-curve or paired comparisons of the variants).
-  json["per_case"] = nlohmann::json::array();
-  for (const auto& r : results)
-    json["per_case"].push_back({{"curve", curves[r.curve].name}, {"kernel", r.kernel + 1}, {"image", r.image + 1},
-                                {"noise_var", kNoiseVariances[r.level]}, {"rmse", r.rmse}, {"shape_rmse", r.shape},
-                                {"chosen", r.chosen}});
-  std::printf("%-20s %9s %9.4f   (best GGCM fit of each true curve: the lower bound for GGCM fits)\n", "ggcm floor",
-              "-", floor_mean);
-  std::printf("shape: mean RMSE over x <= %.1f after the best common factor (phi's shape without the phi(1) = 1 "
-              "normalisation)\n", kShapeLimit);
-  // σ estimation accuracy and model choice.
-  {
-    std::map<int, std::vector<double>> rel;
-    std::map<std::string, int> chosen;
-    for (const auto& r : results) {
-      if (r.sigma_est > 0) rel[r.level].push_back(r.sigma_est / r.sigma_true);
-      if (r.chosen.count("default")) ++chosen[r.chosen.at("default")];
-    }
-    for (auto& [level, v] : rel)
-      std::printf("default: estimated/true noise sigma at var %.3f: mean %.3f\n", kNoiseVariances[level],
-                  std::accumulate(v.begin(), v.end(), 0.0) / v.size());
-    for (auto& [kind, n] : chosen) std::printf("default: model chosen %s in %d cases\n", kind.c_str(), n);
-    for (const Variant& v : variants) {
-      int rejected = 0;
-      for (const auto& r : results)
-        if (r.chosen.count(v.name) && r.chosen.at(v.name) == "rejected") ++rejected;
-      if (rejected) std::printf("%s: %d case(s) rejected by the fitter (scored as gamma 2.2)\n", v.name.c_str(), rejected);
-    }
-  }
-
-  // Speed: sparse level mixture vs direct convolution, and one fit of a 512x384 pair with a 27x27 kernel.
-  if (args.timing) {
-    cv::Mat big;
-    cv::resize(images[0], big, cv::Size(512, 384), 0, 0, cv::INTER_CUBIC);
-    cv::min(cv::max(big, 0.0), 1.0, big);
-    const cv::Mat k27 = io::kernelFromSpec("levin:4");
-    SimulationOptions sim;
-    sim.noise_variance = 0.005;
-    const SimulationResult pair = simulatePair(big, TableModel{curves[0].phi}, k27, sim);
-    const ResponseCurve curve(TableModel{curves[0].phi});
-    const int reps = 20;
-    auto t0 = std::chrono::steady_clock::now();
-    for (int i = 0; i < reps; ++i) {
-      const cv::Mat blurred = convolve(curve.inverse(pair.sharp), k27);
-      (void)blurred;
-    }
-    const double direct = since(t0) / reps;
-    // the pixels the default fitter uses (B edges), mixture built once
-    const LevelImage levels = toLevels(pair.sharp, 256);
-    const cv::Rect inside = interiorRect(big.size(), k27);
-    const LocalRange range = localRange(pair.blurred, k27);
-    std::vector<cv::Point> pixels;
-    for (int y = inside.y; y < inside.y + inside.height; ++y)
-      for (int x = inside.x; x < inside.x + inside.width; ++x)
-        if (range.max.at<double>(y, x) - range.min.at<double>(y, x) > 0.02) pixels.emplace_back(x, y);
-    t0 = std::chrono::steady_clock::now();
-    const LevelMixture mixture = LevelMixture::build(levels, k27, pixels);
-    const double build = since(t0);
-    std::vector<double> lut = curve.inverseLut(8), out(pixels.size());
-    t0 = std::chrono::steady_clock::now();
-    for (int i = 0; i < reps; ++i) mixture.mix(lut, out);
-    const double sparse = since(t0) / reps;
-    std::vector<cv::Point> sub = pixels;
-    if (sub.size() > 20000) {
-      std::vector<cv::Point> s2;
-      for (std::size_t i = 0; i < sub.size(); i += sub.size() / 20000 + 1) s2.push_back(sub[i]);
-      sub = s2;
-    }
-    const LevelMixture mixture_sub = LevelMixture::build(levels, k27, sub);
-    std::vector<double> out_sub(sub.size());
-    t0 = std::chrono::steady_clock::now();
-    for (int i = 0; i < reps; ++i) mixture_sub.mix(lut, out_sub);
-    const double sparse_sub = since(t0) / reps;
-    CrfFitOptions options;
-    options.threads = 1;
-    t0 = std::chrono::steady_clock::now();
-    const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, k27, options);
-    const double fit_s = since(t0);
-    CrfFitOptions seed = CrfFitOptions::seed();
-    seed.threads = 1;
-    t0 = std::chrono::steady_clock::now();
-    const CrfFitResult fit_seed = fitInverseCrf(pair.sharp, pair.blurred, k27, seed);
-    const double seed_s = since(t0);
-    std::printf("\nspeed (512x384, 27x27 Levin kernel 4, one core):\n");
-    std::printf("  direct: phi LUT + full-image convolution per evaluation: %.3f ms\n", direct * 1e3);
-    std::printf("  sparse mixture over %zu edge pixels (%zu non-zeros, built once in %.1f ms): %.3f ms  (%.1fx)\n",
-                pixels.size(), mixture.nonZeros(), build * 1e3, sparse * 1e3, direct / sparse);
-    std::printf("  sparse mixture over the %zu pixels the default keeps: %.3f ms  (%.1fx)\n", sub.size(),
-                sparse_sub * 1e3, direct / sparse_sub);
-    std::printf("  one fit, crfcal default: %.3f s (%d evaluations, phi RMSE %.4f); seed method: %.3f s (%d evaluations, "
-                "phi RMSE %.4f)\n",
-                fit_s, fit.evaluations, curveRmse(fit.inverse_crf, curves[0].phi), seed_s, fit_seed.evaluations,
-                curveRmse(fit_seed.inverse_crf, curves[0].phi));
-    json["speed"] = {{"direct_convolution_ms", direct * 1e3}, {"sparse_mixture_ms", sparse * 1e3},
-                     {"sparse_mixture_default_pixels_ms", sparse_sub * 1e3}, {"speedup", direct / sparse},
-                     {"speedup_default_pixels", direct / sparse_sub}, {"fit_default_seconds", fit_s},
-                     {"fit_seed_seconds", seed_s}, {"edge_pixels", pixels.size()}};
-  }
+  nlohmann::json json = printSyntheticTable(args, setup, run.results, wall);
+  printSigmaAndChoices(setup.variants, run.results);
+  if (args.timing) measureSpeed(setup, json);
 
   if (!args.json.empty()) io::writeJsonOutput(args.json, json, policy.command, 2);
   if (plots) {
     io::OutputDirectory& out = *plots;
-    const int curve = 0;
-    for (const Variant& v : variants) {
-      for (int level = 0; level < 3; ++level) {
-        std::vector<io::PlotSeries> series;
-        std::vector<double> x(kCurveSamples);
-        for (int i = 0; i < kCurveSamples; ++i) x[i] = double(i) / (kCurveSamples - 1);
-        int count = 0;
-        for (const auto& r : results)
-          if (r.curve == curve && r.level == level && r.phi.count(v.name)) {
-            io::PlotSeries s{x, r.phi.at(v.name), cv::Scalar(200, 80, 0), count == 0 ? "estimated (8 kernels)" : "", 1};
-            series.push_back(s);
-            ++count;
-          }
-        if (count == 0) continue;
-        series.push_back({x, curves[curve].phi, cv::Scalar(0, 0, 220), "true " + curves[curve].name, 2});
-        io::PlotOptions po;
-        std::ostringstream title;
-        title << v.name << ": noise var " << kNoiseVariances[level];
-        po.title = title.str();
-        po.x_label = "intensity";
-        po.y_label = "phi (irradiance)";
-        po.x_min = 0; po.x_max = 1; po.y_min = 0; po.y_max = 1;
-        io::writePlot(out.file("fig5_" + v.name + "_var" + std::to_string(level) + ".png"), series, po);
-      }
-      // error per curve (the right panel of Fig. 5)
-      std::vector<io::PlotSeries> per;
-      for (int level = 0; level < 3; ++level) {
-        io::PlotSeries s;
-        s.color = io::seriesColor(level);
-        std::ostringstream label;
-        label << "var " << kNoiseVariances[level];
-        s.label = label.str();
-        s.markers = false;
-        for (int c = 0; c < static_cast<int>(curves.size()); ++c) {
-          std::vector<double> e;
-          for (const auto& r : results)
-            if (r.curve == c && r.level == level && r.rmse.count(v.name)) e.push_back(r.rmse.at(v.name));
-          if (e.empty()) continue;
-          s.x.push_back(c + 1);
-          s.y.push_back(std::accumulate(e.begin(), e.end(), 0.0) / e.size());
-        }
-        if (!s.x.empty()) per.push_back(s);
-      }
-      io::PlotOptions po;
-      po.title = v.name + ": mean RMSE per CRF";
-      po.x_label = "CRF";
-      po.y_label = "mean phi RMSE";
-      po.y_min = 0;
-      if (!per.empty()) io::writePlot(out.file("fig5_" + v.name + "_rmse_per_crf.png"), per, po);
+    for (const Variant& v : setup.variants) {
+      plotEstimates(out, v, setup, run.results);
+      plotErrorPerCurve(out, v, setup, run.results);
     }
     out.commit();
     std::printf("wrote plots to %s\n", args.plot.c_str());

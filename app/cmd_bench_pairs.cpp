@@ -159,7 +159,8 @@ std::string shortName(const std::string& spec) {
   return spec;
 }
 
-int runPairs(const PairsArgs& args) {
+// The photos and curves of a run: the flags', or the defaults (real photos of ../shared/data, bundled curves).
+std::vector<std::string> pairImages(const PairsArgs& args) {
   std::vector<std::string> images = args.images;
   if (images.empty()) {
     const fs::path data = io::defaultSharedData(args.data);
@@ -170,15 +171,20 @@ int runPairs(const PairsArgs& args) {
       images.push_back(path.string());
     }
   }
+  return images;
+}
+
+std::vector<std::string> pairCurves(const PairsArgs& args) {
   std::vector<std::string> crfs = args.crfs;
   if (crfs.empty())
     for (const char* c : kDefaultCurves)
       crfs.push_back("table:" + (io::samplesDirectory() / "camera_curves" / (std::string(c) + ".csv")).string());
+  return crfs;
+}
 
-  // Real regime: the noise camera and every ratio's ISOs are looked up before anything is written.
-  const bool any_real = std::any_of(args.ratios.begin(), args.ratios.end(), [&](double r) { return realRegime(args, r); });
+// Real regime: the noise camera and every ratio's ISOs are looked up before anything is written.
+std::optional<io::CameraNoiseProfile> lookUpRealRegime(const PairsArgs& args, std::map<double, RatioSummary>& by_ratio) {
   std::optional<io::CameraNoiseProfile> noise_camera;
-  std::map<double, RatioSummary> by_ratio;
   for (const double ratio : args.ratios) {
     RatioSummary& summary = by_ratio[ratio];
     summary.regime = realRegime(args, ratio) ? "real" : "sharp-normal";
@@ -191,183 +197,267 @@ int runPairs(const PairsArgs& args) {
     summary.iso_sharp = e.iso_sharp;
     summary.iso_blurred = e.iso_blurred;
   }
+  return noise_camera;
+}
+
+// One case of the run: a photo, a curve, a kernel and a ratio.
+struct PairCase {
+  int index = 0;
+  std::string name;  // "case<index>", its directory
+  std::string image_path, crf, kernel_spec;
+  double ratio = 1;
+  ResponseModel truth;
+  cv::Mat kernel;
+};
+
+// The photo as the cases use it: 8-bit, its longer side at most --max-side.
+cv::Mat readPhoto(const PairsArgs& args, const std::string& image_path) {
+  cv::Mat photo = io::readImage(image_path);
+  if (photo.depth() != CV_8U) photo.convertTo(photo, CV_8U, 255.0 / 65535.0);
+  const double s = std::min(1.0, static_cast<double>(args.max_side) / std::max(photo.cols, photo.rows));
+  if (s < 1) cv::resize(photo, photo, cv::Size(), s, s, cv::INTER_AREA);
+  return photo;
+}
+
+PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::LoadedPair& loaded) {
+  PairCalibrationOptions options;
+  options.kernel.kernel_size = args.kernel_size;
+  options.rgb = args.channels == "rgb";
+  options.fit.nominal_ratio = loaded.exif_ratio->ratio();
+  options.fit.ratio_prior_sigma = args.ratio_prior;
+  options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
+  options.fit.fit_ratio = !args.fix_ratio;
+  options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
+  options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
+  options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
+  options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
+  return options;
+}
+
+// Both kernels on the same canvas and scale (the estimate's window), for a side-by-side look.
+void writeKernels(const fs::path& dir, const cv::Mat& estimated, const cv::Mat& kernel) {
+  const int side = std::max({estimated.rows, kernel.rows, kernel.cols}) | 1;
+  cv::Mat true_padded = cv::Mat::zeros(side, side, CV_64F);
+  kernel.copyTo(true_padded(cv::Rect((side - kernel.cols) / 2, (side - kernel.rows) / 2, kernel.cols, kernel.rows)));
+  io::writeKernelPng(dir / "kernel_estimated.png", estimated);
+  io::writeKernelText(dir / "kernel_estimated.txt", estimated);
+  io::writeKernelPng(dir / "kernel_true.png", true_padded);
+}
+
+// The scores of one calibrated case.
+struct CaseScores {
+  double seconds = 0, rmse = 0, base = 0, rr = 0, kerr = 0, cerr = 0;
+  ChannelComparison shape;
+};
+
+// A run of `bench pairs`: the cases in order, their rows of results.md and results.json, the totals.
+struct PairsRun {
+  const PairsArgs& args;
+  io::OutputDirectory& out;
+  const std::optional<io::CameraNoiseProfile>& noise_camera;
+  std::map<double, RatioSummary>& by_ratio;
+  bool any_real = false;
+  Progress progress;
+  nlohmann::json results = nlohmann::json::array();
+  std::ostringstream table;
+  int index = 0, done = 0;
+  double sum_rmse = 0, sum_base = 0, sum_r = 0, sum_k = 0, worst_r = 0, worst_rmse = 0;
+
+  PairsRun(const PairsArgs& a, io::OutputDirectory& o, const std::optional<io::CameraNoiseProfile>& camera,
+           std::map<double, RatioSummary>& ratios, bool real)
+      : args(a), out(o), noise_camera(camera), by_ratio(ratios), any_real(real) {}
+
+  void writeHeader() {
+    if (noise_camera) table << "real regime: noise of " << noise_camera->summary() << "\n\n";
+    // The shape column only with the real regime, so that the r = 1, 2 tables stay those of RESULTS.
+    table << "| case | image | curve | kernel | r | phi_G RMSE | (base fit) | r fitted/true | kernel shape err | "
+             "reg. corner err px | "
+          << (any_real ? "shape RMSE covered | covered G | " : "") << "time s |\n"
+          << "|---|---|---|---|---|---|---|---|---|---|---|" << (any_real ? "---|---|" : "") << "\n";
+  }
+
+  // The simulated handheld pair of a case, written with its EXIF and truth.json into the case's directory.
+  HandheldPair writePair(const PairCase& c, const cv::Mat& photo, const fs::path& dir) {
+    // A different handheld motion per case: the shift turns by 137.5° (golden angle) from case to case,
+    // the rotation alternates in sign.
+    const double angle = c.index * 2.399963;
+    HandheldPairOptions ho;
+    ho.ratio = c.ratio;
+    ho.shift_x = args.shift * std::cos(angle);
+    ho.shift_y = args.shift * std::sin(angle);
+    ho.rotation_deg = c.index % 2 ? args.rotation : -args.rotation;
+    ho.seed = static_cast<std::uint64_t>(c.index);
+    std::optional<RealExposure> exposure;
+    if (realRegime(args, c.ratio)) {
+      exposure = realExposure(*noise_camera, args.blurred_iso, c.ratio);
+      ho.normally_exposed = HandheldPairOptions::NormallyExposed::Blurred;
+      ho.sharp_noise = exposure->noise_sharp;
+      ho.blurred_noise = exposure->noise_blurred;
+    }
+    const HandheldPair pair = makeHandheldPair(photo, c.truth, c.kernel, ho);
+    fs::create_directories(dir);
+    io::writeJpeg(dir / "sharp.jpg", pair.sharp, args.quality);
+    io::writeJpeg(dir / "blurred.jpg", pair.blurred, args.quality);
+    ExifExposure es, eb;
+    es.make = eb.make = "crfcal";
+    es.model = eb.model = "semi-real handheld";
+    es.iso = 800;
+    es.exposure_time = 0.01;
+    es.f_number = eb.f_number = 4.0;
+    eb.iso = 100;
+    eb.exposure_time = c.ratio * (1 + args.exif_error) * 800 * 0.01 / 100;
+    if (exposure) setRealExif(es, eb, *exposure, c.ratio, args.exif_error);
+    io::writeExif(dir / "sharp.jpg", es);
+    io::writeExif(dir / "blurred.jpg", eb);
+    nlohmann::json truth_json = {{"inverse_crf", sampleInverse(c.truth)}, {"crf_spec", c.crf}, {"kernel_spec", c.kernel_spec},
+                                 {"exposure_ratio", c.ratio}, {"nominal_ratio", *eb.exposure_time * 100 / 8.0},
+                                 {"homography", std::vector<double>(pair.homography.begin<double>(), pair.homography.end<double>())},
+                                 {"image", c.image_path}};
+    if (exposure)
+      truth_json.update({{"regime", "real"}, {"noise_camera", noise_camera->camera()},
+                         {"noise_profiles", noise_camera->source}, {"iso_sharp", *es.iso}, {"iso_blurred", *eb.iso},
+                         {"exif_ratio", *eb.iso * *eb.exposure_time / (*es.iso * *es.exposure_time)}});
+    io::writeTextFile(dir / "truth.json", truth_json.dump(1) + "\n");
+    return pair;
+  }
+
+  // Calibrates the written pair back and scores it against the truth; fills the case's JSON row.
+  CaseScores calibrate(const PairCase& c, const HandheldPair& pair, cv::Size photo_size, const fs::path& dir,
+                       std::chrono::steady_clock::time_point t0, nlohmann::json& row) {
+    const io::LoadedPair loaded = io::loadPair(dir / "sharp.jpg", dir / "blurred.jpg");
+    const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, calibrationOptions(args, loaded));
+    CaseScores s;
+    s.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    s.rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(c.truth));
+    s.rr = r.fits.at("G").ratio / c.ratio;
+    // φ before a detected effect's extended model replaced it (effects.hpp), for comparison.
+    s.base = r.base_fits.count("G") ? curveRmse(r.base_fits.at("G").inverse_crf, sampleInverse(c.truth)) : s.rmse;
+    s.kerr = kernelShapeError(r.kernel.kernel, c.kernel);
+    s.cerr = cornerError(r.registration.homography, pair.homography, photo_size,
+                         kernelCentroid(c.kernel) - r.kernel.centroid);
+    writeKernels(dir, r.kernel.kernel, c.kernel);
+    row.update({{"phi_rmse_G", s.rmse}, {"phi_rmse_G_base_fit", s.base}, {"ratio_fitted_over_true", s.rr},
+                {"effects_detected", r.effects.detected()}, {"kernel_shape_error", s.kerr},
+                {"registration_corner_error_px", s.cerr}, {"seconds", s.seconds}, {"swapped", loaded.swapped},
+                {"inverse_crf_G", r.fits.at("G").inverse_crf}, {"warnings", r.warnings}});
+    // Shape over the covered range after the best common scale: φ → bφ leaves Eq. 4 unchanged.
+    std::optional<IntensityRange> covered;
+    if (r.covered_range.count("G")) covered = r.covered_range.at("G");
+    s.shape = compareCurves(sampleInverse(c.truth), r.fits.at("G").inverse_crf, {}, covered);
+    row.update({{"phi_shape_rmse_G_covered", s.shape.rmse_covered_aligned}, {"phi_scale_G_covered", s.shape.scale_covered},
+                {"covered_G", {s.shape.covered.first, s.shape.covered.second}}});
+    return s;
+  }
+
+  std::string tableRow(const PairCase& c, const CaseScores& s) const {
+    char line[400];
+    const std::string image = fs::path(c.image_path).filename().string();
+    if (any_real)
+      std::snprintf(line, sizeof line,
+                    "| %s | %s | %s | %s | %.2f | %.4f | %.4f | %.4f | %.3f | %.2f | %.4f | %.2f-%.2f | %.1f |\n",
+                    c.name.c_str(), image.c_str(), shortName(c.crf).c_str(), c.kernel_spec.c_str(), c.ratio, s.rmse,
+                    s.base, s.rr, s.kerr, s.cerr, s.shape.rmse_covered_aligned, s.shape.covered.first,
+                    s.shape.covered.second, s.seconds);
+    else
+      std::snprintf(line, sizeof line, "| %s | %s | %s | %s | %.2f | %.4f | %.4f | %.4f | %.3f | %.2f | %.1f |\n",
+                    c.name.c_str(), image.c_str(), shortName(c.crf).c_str(), c.kernel_spec.c_str(), c.ratio, s.rmse,
+                    s.base, s.rr, s.kerr, s.cerr, s.seconds);
+    return line;
+  }
+
+  void count(RatioSummary& summary, const CaseScores& s) {
+    const double r_error = std::abs(s.rr - 1), shape = s.shape.rmse_covered_aligned;
+    ++summary.done;
+    summary.sum_r_error += r_error;
+    summary.worst_r_error = std::max(summary.worst_r_error, r_error);
+    summary.within_5_percent += r_error <= 0.05;
+    summary.sum_rmse += s.rmse;
+    summary.worst_rmse = std::max(summary.worst_rmse, s.rmse);
+    summary.sum_shape += shape;
+    summary.worst_shape = std::max(summary.worst_shape, shape);
+    summary.shape_within_001 += shape <= 0.01;
+    summary.seconds += s.seconds;
+    sum_rmse += s.rmse;
+    sum_base += s.base;
+    sum_r += r_error;
+    sum_k += s.kerr;
+    worst_r = std::max(worst_r, r_error);
+    worst_rmse = std::max(worst_rmse, s.rmse);
+    ++done;
+  }
+
+  void runCase(const std::string& image_path, const cv::Mat& photo, const std::string& crf,
+               const std::string& kernel_spec, double ratio) {
+    ++index;
+    progress.stage("case" + std::to_string(index));
+    const PairCase c{index, "case" + std::to_string(index), image_path, crf, kernel_spec, ratio,
+                     io::parseResponseSpec(crf), io::kernelFromSpec(kernel_spec)};
+    RatioSummary& summary = by_ratio[ratio];
+    ++summary.cases;
+    const fs::path dir = out.file(c.name);
+    const HandheldPair pair = writePair(c, photo, dir);
+    if (args.pairs_only) {
+      progress.done();
+      return;
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    nlohmann::json row = {{"case", c.name}, {"image", fs::path(image_path).filename().string()}, {"crf", crf},
+                          {"kernel", kernel_spec}, {"ratio", ratio}, {"regime", summary.regime}};
+    try {
+      const CaseScores s = calibrate(c, pair, photo.size(), dir, t0, row);
+      const std::string line = tableRow(c, s);
+      table << line;
+      count(summary, s);
+      progress.done(line);
+    } catch (const Error& e) {
+      row["error"] = e.what();
+      table << "| " << c.name << " | failed: " << e.what() << " ||||||||||" << (any_real ? "||" : "") << "\n";
+      const bool size_limit = std::string(e.what()).find("size limit") != std::string::npos;
+      summary.size_limit_stops += size_limit;
+      summary.other_failures += !size_limit;
+      summary.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      progress.done(std::string("FAILED: ") + e.what());
+    }
+    results.push_back(row);
+  }
+
+  void writeTotals() {
+    if (done > 0) {
+      char line[400];
+      std::snprintf(line, sizeof line,
+                    "\nmean phi_G RMSE %.4f (worst %.4f; base fits before effect refits %.4f), mean |r_fitted/r_true - 1| "
+                    "%.4f (worst %.4f), mean kernel shape error %.3f over %d of %d cases\n",
+                    sum_rmse / done, worst_rmse, sum_base / done, sum_r / done, worst_r, sum_k / done, done, index);
+      table << line;
+    }
+    if (any_real && !args.pairs_only) table << ratioSummaryTable(by_ratio);
+  }
+};
+
+int runPairs(const PairsArgs& args) {
+  const std::vector<std::string> images = pairImages(args);
+  const std::vector<std::string> crfs = pairCurves(args);
+  const bool any_real = std::any_of(args.ratios.begin(), args.ratios.end(), [&](double r) { return realRegime(args, r); });
+  std::map<double, RatioSummary> by_ratio;
+  const std::optional<io::CameraNoiseProfile> noise_camera = lookUpRealRegime(args, by_ratio);
 
   std::vector<fs::path> inputs(images.begin(), images.end());
   for (const auto& spec : crfs) inputs.push_back(io::specInput(spec));
   for (const auto& spec : args.kernels) inputs.push_back(io::specInput(spec));
   io::OutputDirectory out(args.output, {"bench pairs", inputs, args.force});  // refused or unwritable: fails now
-  Progress progress;
-  nlohmann::json results = nlohmann::json::array();
-  std::ostringstream table;
-  if (noise_camera) table << "real regime: noise of " << noise_camera->summary() << "\n\n";
-  // The shape column only with the real regime, so that the r = 1, 2 tables stay those of RESULTS.
-  table << "| case | image | curve | kernel | r | phi_G RMSE | (base fit) | r fitted/true | kernel shape err | "
-           "reg. corner err px | "
-        << (any_real ? "shape RMSE covered | covered G | " : "") << "time s |\n"
-        << "|---|---|---|---|---|---|---|---|---|---|---|" << (any_real ? "---|---|" : "") << "\n";
-  int index = 0;
-  double sum_rmse = 0, sum_base = 0, sum_r = 0, sum_k = 0, worst_r = 0, worst_rmse = 0;
-  int done = 0;
+  PairsRun run(args, out, noise_camera, by_ratio, any_real);
+  run.writeHeader();
   for (const auto& image_path : images) {
-    cv::Mat photo = io::readImage(image_path);
-    if (photo.depth() != CV_8U) photo.convertTo(photo, CV_8U, 255.0 / 65535.0);
-    const double s = std::min(1.0, static_cast<double>(args.max_side) / std::max(photo.cols, photo.rows));
-    if (s < 1) cv::resize(photo, photo, cv::Size(), s, s, cv::INTER_AREA);
-    for (const auto& crf : crfs) {
-      for (const auto& kernel_spec : args.kernels) {
-        for (const double ratio : args.ratios) {
-          ++index;
-          const std::string name = "case" + std::to_string(index);
-          progress.stage(name);
-          const ResponseModel truth = io::parseResponseSpec(crf);
-          const cv::Mat kernel = io::kernelFromSpec(kernel_spec);
-          // A different handheld motion per case: the shift turns by 137.5° (golden angle) from case to case,
-          // the rotation alternates in sign.
-          const double angle = index * 2.399963;
-          HandheldPairOptions ho;
-          ho.ratio = ratio;
-          ho.shift_x = args.shift * std::cos(angle);
-          ho.shift_y = args.shift * std::sin(angle);
-          ho.rotation_deg = index % 2 ? args.rotation : -args.rotation;
-          ho.seed = static_cast<std::uint64_t>(index);
-          const bool real = realRegime(args, ratio);
-          RatioSummary& summary = by_ratio[ratio];
-          ++summary.cases;
-          std::optional<RealExposure> exposure;
-          if (real) {
-            exposure = realExposure(*noise_camera, args.blurred_iso, ratio);
-            ho.normally_exposed = HandheldPairOptions::NormallyExposed::Blurred;
-            ho.sharp_noise = exposure->noise_sharp;
-            ho.blurred_noise = exposure->noise_blurred;
-          }
-          const HandheldPair pair = makeHandheldPair(photo, truth, kernel, ho);
-          const fs::path dir = out.file(name);
-          fs::create_directories(dir);
-          io::writeJpeg(dir / "sharp.jpg", pair.sharp, args.quality);
-          io::writeJpeg(dir / "blurred.jpg", pair.blurred, args.quality);
-          ExifExposure es, eb;
-          es.make = eb.make = "crfcal";
-          es.model = eb.model = "semi-real handheld";
-          es.iso = 800;
-          es.exposure_time = 0.01;
-          es.f_number = eb.f_number = 4.0;
-          eb.iso = 100;
-          eb.exposure_time = ratio * (1 + args.exif_error) * 800 * 0.01 / 100;
-          if (exposure) setRealExif(es, eb, *exposure, ratio, args.exif_error);
-          io::writeExif(dir / "sharp.jpg", es);
-          io::writeExif(dir / "blurred.jpg", eb);
-          nlohmann::json truth_json = {{"inverse_crf", sampleInverse(truth)}, {"crf_spec", crf}, {"kernel_spec", kernel_spec},
-                                       {"exposure_ratio", ratio}, {"nominal_ratio", *eb.exposure_time * 100 / 8.0},
-                                       {"homography", std::vector<double>(pair.homography.begin<double>(), pair.homography.end<double>())},
-                                       {"image", image_path}};
-          if (exposure)
-            truth_json.update({{"regime", "real"}, {"noise_camera", noise_camera->camera()},
-                               {"noise_profiles", noise_camera->source}, {"iso_sharp", *es.iso}, {"iso_blurred", *eb.iso},
-                               {"exif_ratio", *eb.iso * *eb.exposure_time / (*es.iso * *es.exposure_time)}});
-          io::writeTextFile(dir / "truth.json", truth_json.dump(1) + "\n");
-          if (args.pairs_only) {
-            progress.done();
-            continue;
-          }
-          const auto t0 = std::chrono::steady_clock::now();
-          nlohmann::json row = {{"case", name}, {"image", fs::path(image_path).filename().string()}, {"crf", crf},
-                                {"kernel", kernel_spec}, {"ratio", ratio}, {"regime", summary.regime}};
-          try {
-            const io::LoadedPair loaded = io::loadPair(dir / "sharp.jpg", dir / "blurred.jpg");
-            PairCalibrationOptions options;
-            options.kernel.kernel_size = args.kernel_size;
-            options.rgb = args.channels == "rgb";
-            options.fit.nominal_ratio = loaded.exif_ratio->ratio();
-            options.fit.ratio_prior_sigma = args.ratio_prior;
-            options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
-            options.fit.fit_ratio = !args.fix_ratio;
-            options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
-            options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
-            options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
-            options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
-            const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
-            const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-            const double rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(truth));
-            const double rr = r.fits.at("G").ratio / ratio;
-            // φ before a detected effect's extended model replaced it (effects.hpp), for comparison.
-            const double base = r.base_fits.count("G") ? curveRmse(r.base_fits.at("G").inverse_crf, sampleInverse(truth)) : rmse;
-            const double kerr = kernelShapeError(r.kernel.kernel, kernel);
-            const double cerr = cornerError(r.registration.homography, pair.homography, photo.size(),
-                                            kernelCentroid(kernel) - r.kernel.centroid);
-            // Both kernels on the same canvas and scale (the estimate's window), for a side-by-side look.
-            const int side = std::max({r.kernel.kernel.rows, kernel.rows, kernel.cols}) | 1;
-            cv::Mat true_padded = cv::Mat::zeros(side, side, CV_64F);
-            kernel.copyTo(true_padded(cv::Rect((side - kernel.cols) / 2, (side - kernel.rows) / 2, kernel.cols, kernel.rows)));
-            io::writeKernelPng(dir / "kernel_estimated.png", r.kernel.kernel);
-            io::writeKernelText(dir / "kernel_estimated.txt", r.kernel.kernel);
-            io::writeKernelPng(dir / "kernel_true.png", true_padded);
-            row.update({{"phi_rmse_G", rmse}, {"phi_rmse_G_base_fit", base}, {"ratio_fitted_over_true", rr},
-                        {"effects_detected", r.effects.detected()}, {"kernel_shape_error", kerr},
-                        {"registration_corner_error_px", cerr}, {"seconds", seconds}, {"swapped", loaded.swapped},
-                        {"inverse_crf_G", r.fits.at("G").inverse_crf}, {"warnings", r.warnings}});
-            // Shape over the covered range after the best common scale: φ → bφ leaves Eq. 4 unchanged.
-            std::optional<IntensityRange> covered;
-            if (r.covered_range.count("G")) covered = r.covered_range.at("G");
-            const ChannelComparison shape = compareCurves(sampleInverse(truth), r.fits.at("G").inverse_crf, {}, covered);
-            row.update({{"phi_shape_rmse_G_covered", shape.rmse_covered_aligned}, {"phi_scale_G_covered", shape.scale_covered},
-                        {"covered_G", {shape.covered.first, shape.covered.second}}});
-            char line[400];
-            if (any_real)
-              std::snprintf(line, sizeof line,
-                            "| %s | %s | %s | %s | %.2f | %.4f | %.4f | %.4f | %.3f | %.2f | %.4f | %.2f-%.2f | %.1f |\n",
-                            name.c_str(), fs::path(image_path).filename().string().c_str(), shortName(crf).c_str(),
-                            kernel_spec.c_str(), ratio, rmse, base, rr, kerr, cerr, shape.rmse_covered_aligned,
-                            shape.covered.first, shape.covered.second, seconds);
-            else
-              std::snprintf(line, sizeof line, "| %s | %s | %s | %s | %.2f | %.4f | %.4f | %.4f | %.3f | %.2f | %.1f |\n",
-                            name.c_str(), fs::path(image_path).filename().string().c_str(), shortName(crf).c_str(),
-                            kernel_spec.c_str(), ratio, rmse, base, rr, kerr, cerr, seconds);
-            table << line;
-            ++summary.done;
-            summary.sum_r_error += std::abs(rr - 1);
-            summary.worst_r_error = std::max(summary.worst_r_error, std::abs(rr - 1));
-            summary.within_5_percent += std::abs(rr - 1) <= 0.05;
-            summary.sum_rmse += rmse;
-            summary.worst_rmse = std::max(summary.worst_rmse, rmse);
-            summary.sum_shape += shape.rmse_covered_aligned;
-            summary.worst_shape = std::max(summary.worst_shape, shape.rmse_covered_aligned);
-            summary.shape_within_001 += shape.rmse_covered_aligned <= 0.01;
-            summary.seconds += seconds;
-            sum_rmse += rmse;
-            sum_base += base;
-            sum_r += std::abs(rr - 1);
-            sum_k += kerr;
-            worst_r = std::max(worst_r, std::abs(rr - 1));
-            worst_rmse = std::max(worst_rmse, rmse);
-            ++done;
-            progress.done(line);
-          } catch (const Error& e) {
-            row["error"] = e.what();
-            table << "| " << name << " | failed: " << e.what() << " ||||||||||" << (any_real ? "||" : "") << "\n";
-            const bool size_limit = std::string(e.what()).find("size limit") != std::string::npos;
-            summary.size_limit_stops += size_limit;
-            summary.other_failures += !size_limit;
-            summary.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-            progress.done(std::string("FAILED: ") + e.what());
-          }
-          results.push_back(row);
-        }
-      }
-    }
+    const cv::Mat photo = readPhoto(args, image_path);
+    for (const auto& crf : crfs)
+      for (const auto& kernel_spec : args.kernels)
+        for (const double ratio : args.ratios) run.runCase(image_path, photo, crf, kernel_spec, ratio);
   }
-  if (done > 0) {
-    char line[400];
-    std::snprintf(line, sizeof line,
-                  "\nmean phi_G RMSE %.4f (worst %.4f; base fits before effect refits %.4f), mean |r_fitted/r_true - 1| "
-                  "%.4f (worst %.4f), mean kernel shape error %.3f over %d of %d cases\n",
-                  sum_rmse / done, worst_rmse, sum_base / done, sum_r / done, worst_r, sum_k / done, done, index);
-    table << line;
-  }
-  if (any_real && !args.pairs_only) table << ratioSummaryTable(by_ratio);
-  io::writeTextFile(out.file("results.json"), results.dump(1) + "\n");
-  io::writeTextFile(out.file("results.md"), table.str());
+  run.writeTotals();
+  io::writeTextFile(out.file("results.json"), run.results.dump(1) + "\n");
+  io::writeTextFile(out.file("results.md"), run.table.str());
   out.commit();
-  std::printf("%s", table.str().c_str());
+  std::printf("%s", run.table.str().c_str());
   std::printf("wrote %s/{results.md, results.json, case*/}\n", args.output.c_str());
   return kExitOk;
 }

@@ -155,30 +155,21 @@ void requireUsablePair(const io::LoadedPair& pair) {
   }
 }
 
-int runCalibrate(const CalibrateArgs& args) {
-  using Clock = std::chrono::steady_clock;
-  const auto start = Clock::now();
-  if (args.threads > 0) cv::setNumThreads(args.threads);
-  Progress progress(args.quiet);
-  std::map<std::string, double> timings;  // the command's stages (the calibration's own are in its result)
-  // Decided before the computation: a refused or unwritable output directory fails at once.
-  io::OutputDirectory out(args.output, {"calibrate", {args.first, args.second, args.kernel_file, args.raw_truth}, args.force});
+double secondsSince(std::chrono::steady_clock::time_point from) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - from).count();
+}
 
-  progress.stage("decode");
-  auto t = Clock::now();
-  io::RawDecodeOptions raw;
-  raw.camera_white_balance = !args.no_white_balance;
+io::LoadedPair decodePair(const CalibrateArgs& args, const io::RawDecodeOptions& raw) {
   const io::BlurredChoice choice = args.blurred == "first"    ? io::BlurredChoice::first
                                    : args.blurred == "second" ? io::BlurredChoice::second
                                                               : io::BlurredChoice::automatic;
-  const io::LoadedPair pair = io::loadPair(args.first, args.second, choice, raw);
+  io::LoadedPair pair = io::loadPair(args.first, args.second, choice, raw);
   requireUsablePair(pair);
-  timings["decode"] = std::chrono::duration<double>(Clock::now() - t).count();
-  progress.done(pair.sharp.format + " pair " + std::to_string(pair.blurred.image.cols) + "x" +
-                std::to_string(pair.blurred.image.rows) + "; blurred = " + pair.blurred.path.filename().string() +
-                " (" + pair.blurred_reason + ")");
+  return pair;
+}
 
-  // Exposure ratio (footnote 4).
+// Exposure ratio (footnote 4): --ratio, else the EXIF's (printed unless -q); neither is an error naming the file.
+double nominalRatio(const CalibrateArgs& args, const io::LoadedPair& pair) {
   double nominal_ratio = args.ratio;
   if (pair.exif_ratio) {
     if (!args.quiet)
@@ -192,19 +183,10 @@ int runCalibrate(const CalibrateArgs& args) {
                                                                   : pair.blurred.path.string());
     nominal_ratio = pair.exif_ratio->ratio();
   }
+  return nominal_ratio;
+}
 
-  // The RAW of one shot: the camera's real response, measured before the (longer) pair calibration so that a bad
-  // file fails fast.
-  std::optional<RawTruthRun> truth;
-  if (!args.raw_truth.empty()) {
-    progress.stage("raw truth");
-    t = Clock::now();
-    truth = computeTruth(args, pair, raw);
-    timings["raw_truth"] = std::chrono::duration<double>(Clock::now() - t).count();
-    progress.done(truth->file.format + " " + truth->file.path.filename().string() + " = the " +
-                  (truth->shot.blurred ? "blurred" : "sharp") + " shot (" + truth->shot.reason + ")");
-  }
-
+PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nominal_ratio) {
   PairCalibrationOptions options;
   options.kernel.kernel_size = args.kernel_size;
   options.rgb = args.channels == "rgb";
@@ -224,8 +206,15 @@ int runCalibrate(const CalibrateArgs& args) {
                                              : CrfModelChoice::automatic;
   options.fit.threads = args.threads;
   if (!args.kernel_file.empty()) options.given_kernel = io::readKernel(args.kernel_file);
+  return options;
+}
+
+// The calibration's stages on the progress line ("fit …" stages shown as one).
+struct StageProgress {
+  Progress& progress;
   std::string current;
-  options.progress = [&](const std::string& stage, double fraction, const std::string& detail) {
+
+  void report(const std::string& stage, double fraction, const std::string& detail) {
     std::string name = stage.rfind("fit", 0) == 0 ? "fit" : stage;
     if (name != current) {
       if (!current.empty()) progress.done();
@@ -233,60 +222,43 @@ int runCalibrate(const CalibrateArgs& args) {
       current = name;
     }
     progress.update(fraction, detail);
-  };
-  // Problems found by the computation name the pair's file(s), like the decoding errors do.
-  const PairCalibrationResult result = [&] {
-    try {
-      return calibratePair(pair.sharp.image, pair.blurred.image, options);
-    } catch (const InvalidInput& e) {
-      if (!e.file().empty()) throw;
-      const std::string file = e.subject() == ErrorSubject::blurred_image ? pair.blurred.path.string()
-                               : e.subject() == ErrorSubject::sharp_image
-                                   ? pair.sharp.path.string()
-                                   : pair.sharp.path.string() + ", " + pair.blurred.path.string();
-      throw InvalidInput(e.reason(), e.subject(), file);
-    }
-  }();
-  if (!current.empty()) progress.done();
-
-  progress.stage("write");
-  t = Clock::now();
-  std::optional<io::RawTruthReport> truth_report;
-  if (truth) {
-    truth_report.emplace(io::RawTruthReport{truth->file, truth->shot.blurred, truth->shot_file, truth->shot.reason,
-                                            truth->result, std::nullopt, false});
-    compareWithTruth(result, *truth_report);
   }
-  const io::CalibrationReportContext context{pair, nominal_ratio, args.ratio > 0 ? "--ratio" : "exif", args.fix_ratio,
-                                             options.fit.ratio_prior_sigma, truth_report ? &*truth_report : nullptr};
-  io::CalibrationReport report = io::calibrationReport(result, context);
-  report.timings.insert(timings.begin(), timings.end());
-  const cv::Mat& K = result.kernel.kernel;
+  void finish() {
+    if (!current.empty()) progress.done();
+  }
+};
 
-  // inverse_crf.csv
-  {
-    std::ostringstream csv;
-    csv << "x";
-    const auto channels = report.channels();
-    for (const auto& c : channels) csv << "," << c;
+// Problems found by the computation name the pair's file(s), like the decoding errors do.
+PairCalibrationResult calibrateNamingFiles(const io::LoadedPair& pair, const PairCalibrationOptions& options) {
+  try {
+    return calibratePair(pair.sharp.image, pair.blurred.image, options);
+  } catch (const InvalidInput& e) {
+    if (!e.file().empty()) throw;
+    const std::string file = e.subject() == ErrorSubject::blurred_image ? pair.blurred.path.string()
+                             : e.subject() == ErrorSubject::sharp_image
+                                 ? pair.sharp.path.string()
+                                 : pair.sharp.path.string() + ", " + pair.blurred.path.string();
+    throw InvalidInput(e.reason(), e.subject(), file);
+  }
+}
+
+void writeInverseCrfCsv(io::OutputDirectory& out, const io::CalibrationReport& report) {
+  std::ostringstream csv;
+  csv << "x";
+  const auto channels = report.channels();
+  for (const auto& c : channels) csv << "," << c;
+  csv << "\n";
+  for (int i = 0; i < kCurveSamples; ++i) {
+    csv << static_cast<double>(i) / (kCurveSamples - 1);
+    for (const auto& c : channels) csv << "," << report.inverse_crf.at(c)[i];
     csv << "\n";
-    for (int i = 0; i < kCurveSamples; ++i) {
-      csv << static_cast<double>(i) / (kCurveSamples - 1);
-      for (const auto& c : channels) csv << "," << report.inverse_crf.at(c)[i];
-      csv << "\n";
-    }
-    io::writeTextFile(out.file("inverse_crf.csv"), csv.str());
   }
-  io::writeKernelText(out.file("kernel.txt"), K);
-  std::map<std::string, std::vector<double>> truth_curves;
-  if (truth) truth_curves = truth->result.inverse();
-  io::writeCalibrationFigures(out.file(""), {result, pair, truth ? &truth_curves : nullptr});
-  report.timings["write"] = std::chrono::duration<double>(Clock::now() - t).count();
-  report.timings["total"] = std::chrono::duration<double>(Clock::now() - start).count();
-  io::writeReport(out.file("report.json"), report);
-  out.commit();
-  progress.done();
+  io::writeTextFile(out.file("inverse_crf.csv"), csv.str());
+}
 
+void printCalibration(const CalibrateArgs& args, double nominal_ratio, const PairCalibrationOptions& options,
+                      const PairCalibrationResult& result, const io::CalibrationReport& report,
+                      const std::optional<RawTruthRun>& truth, const std::optional<io::RawTruthReport>& truth_report) {
   std::printf("%s\n", result.summary().c_str());
   std::printf("exposure ratio: %s %.4g, fitted %.4g", args.ratio > 0 ? "given" : "EXIF", nominal_ratio,
               *report.fitted_ratio);
@@ -302,6 +274,72 @@ int runCalibrate(const CalibrateArgs& args) {
   for (const auto& w : report.warnings) std::printf("warning: %s\n", w.c_str());
   std::printf("wrote %s/{report.json, inverse_crf.csv, kernel.png, kernel.txt, curve.png, gamma_map.png, weights.png}\n",
               args.output.c_str());
+}
+
+int runCalibrate(const CalibrateArgs& args) {
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  if (args.threads > 0) cv::setNumThreads(args.threads);
+  Progress progress(args.quiet);
+  std::map<std::string, double> timings;  // the command's stages (the calibration's own are in its result)
+  // Decided before the computation: a refused or unwritable output directory fails at once.
+  io::OutputDirectory out(args.output, {"calibrate", {args.first, args.second, args.kernel_file, args.raw_truth}, args.force});
+
+  progress.stage("decode");
+  auto t = Clock::now();
+  io::RawDecodeOptions raw;
+  raw.camera_white_balance = !args.no_white_balance;
+  const io::LoadedPair pair = decodePair(args, raw);
+  timings["decode"] = secondsSince(t);
+  progress.done(pair.sharp.format + " pair " + std::to_string(pair.blurred.image.cols) + "x" +
+                std::to_string(pair.blurred.image.rows) + "; blurred = " + pair.blurred.path.filename().string() +
+                " (" + pair.blurred_reason + ")");
+  const double nominal_ratio = nominalRatio(args, pair);
+
+  // The RAW of one shot: the camera's real response, measured before the (longer) pair calibration so that a bad
+  // file fails fast.
+  std::optional<RawTruthRun> truth;
+  if (!args.raw_truth.empty()) {
+    progress.stage("raw truth");
+    t = Clock::now();
+    truth = computeTruth(args, pair, raw);
+    timings["raw_truth"] = secondsSince(t);
+    progress.done(truth->file.format + " " + truth->file.path.filename().string() + " = the " +
+                  (truth->shot.blurred ? "blurred" : "sharp") + " shot (" + truth->shot.reason + ")");
+  }
+
+  PairCalibrationOptions options = calibrationOptions(args, nominal_ratio);
+  StageProgress stages{progress, {}};
+  options.progress = [&stages](const std::string& stage, double fraction, const std::string& detail) {
+    stages.report(stage, fraction, detail);
+  };
+  const PairCalibrationResult result = calibrateNamingFiles(pair, options);
+  stages.finish();
+
+  progress.stage("write");
+  t = Clock::now();
+  std::optional<io::RawTruthReport> truth_report;
+  if (truth) {
+    truth_report.emplace(io::RawTruthReport{truth->file, truth->shot.blurred, truth->shot_file, truth->shot.reason,
+                                            truth->result, std::nullopt, false});
+    compareWithTruth(result, *truth_report);
+  }
+  const io::CalibrationReportContext context{pair, nominal_ratio, args.ratio > 0 ? "--ratio" : "exif", args.fix_ratio,
+                                             options.fit.ratio_prior_sigma, truth_report ? &*truth_report : nullptr};
+  io::CalibrationReport report = io::calibrationReport(result, context);
+  report.timings.insert(timings.begin(), timings.end());
+  writeInverseCrfCsv(out, report);
+  io::writeKernelText(out.file("kernel.txt"), result.kernel.kernel);
+  std::map<std::string, std::vector<double>> truth_curves;
+  if (truth) truth_curves = truth->result.inverse();
+  io::writeCalibrationFigures(out.file(""), {result, pair, truth ? &truth_curves : nullptr});
+  report.timings["write"] = secondsSince(t);
+  report.timings["total"] = secondsSince(start);
+  io::writeReport(out.file("report.json"), report);
+  out.commit();
+  progress.done();
+
+  printCalibration(args, nominal_ratio, options, result, report, truth, truth_report);
   return kExitOk;
 }
 

@@ -94,16 +94,12 @@ void requireExposuresFollowBrightness(const std::vector<ChartShot>& shots, const
     }
 }
 
-int runChart(ChartArgs args) {
-  Progress progress(args.quiet);
-  if (!args.raws.empty() && args.raws.size() != args.images.size())
-    throw InvalidInput("--raw needs one RAW image per IMAGE (" + std::to_string(args.images.size()) + ")");
-  if (!args.corners.empty() && args.corners.size() != 1 && args.corners.size() != args.images.size())
-    throw InvalidInput("--corners: give one set for all images or one per image");
-  const io::ChartLayout layout = io::parseChartLayout(args.layout);
-  // A bad --truth (NaN, decreasing, not a curve) is refused before the calibration, not after it; the same reader
-  // and validation as every other curve (io::readCurveTable, checkInverseSamples).
-  if (!args.truth.empty()) io::readCurveTable(args.truth, args.channels.find('G') != std::string::npos ? "G" : "R");
+double secondsSince(std::chrono::steady_clock::time_point from) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - from).count();
+}
+
+// The calibration options the flags ask for (refusing unknown channel letters).
+ChartCalibrationOptions chartOptions(const ChartArgs& args) {
   ChartCalibrationOptions options = args.options;
   options.use_raw = !args.raws.empty();
   options.raw_neutral_only = args.patches == "neutral";
@@ -115,107 +111,110 @@ int runChart(ChartArgs args) {
     else if (c == 'B') options.channels.push_back(2);
     else throw InvalidInput("--channels: use letters R, G, B");
   }
-  std::vector<double> exposures;
-  if (!args.exposures.empty()) {
-    exposures = parseExposures(args.exposures, args.images.size());
-  }
+  return options;
+}
 
-  // Decided before the computation: a refused or unwritable output directory fails at once.
-  std::vector<std::filesystem::path> input_files(args.images.begin(), args.images.end());
-  input_files.insert(input_files.end(), args.raws.begin(), args.raws.end());
-  input_files.push_back(args.truth);
-  io::OutputDirectory out(args.output, {"chart", input_files, args.force});
-
-  const auto start = std::chrono::steady_clock::now();
-  auto seconds = [](std::chrono::steady_clock::time_point from) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - from).count();
-  };
-  progress.stage("sample patches");
+// The sampled shots with what report.json says of each input, and what the rectified charts look like.
+struct SampledCharts {
   std::vector<ChartShot> shots;
   std::vector<cv::Mat> rectified;  // written as chart_<i>.png to check the detection
   nlohmann::json inputs = nlohmann::json::array();
-  std::vector<std::string> input_warnings;
-  for (size_t i = 0; i < args.images.size(); ++i) {
-    std::optional<chart::ChartCorners> corners;
-    if (!args.corners.empty()) corners = io::parseCorners(args.corners.size() == 1 ? args.corners[0] : args.corners[i]);
-    const io::LoadedChart loaded = io::loadChart(args.images[i], layout, corners);
-    ChartShot shot;
-    shot.name = std::filesystem::path(args.images[i]).filename().string();
-    shot.measured = chart::sampleRectified(loaded.rectified, args.sampling);
-    if (options.use_raw) {
-      // The RAW rendering of the same shot has the same geometry.
-      const io::LoadedChart raw = io::loadChart(args.raws[i], layout, loaded.corners);
-      shot.raw = chart::sampleRectified(raw.rectified, args.sampling);
-    }
-    if (!exposures.empty()) shot.exposure = exposures[i];
-    else if (!args.no_exif && !options.use_raw) {
-      const ExifExposure exif = io::readExif(args.images[i]);
-      if (exif.usable()) shot.exposure = *exif.iso * *exif.exposure_time / std::pow(exif.f_number.value_or(1.0), 2);
-    }
-    rectified.push_back(loaded.rectified);
-    nlohmann::json entry;
-    entry["image"] = args.images[i];
-    entry["rectified"] = "chart_" + std::to_string(i + 1) + ".png";
-    if (options.use_raw) entry["raw"] = args.raws[i];
-    entry["chart"] = loaded.how;
-    entry["corners"] = nlohmann::json::array();
-    for (const auto& p : loaded.corners) entry["corners"].push_back({p.x, p.y});
-    entry["exposure"] = shot.exposure > 0 ? nlohmann::json(shot.exposure) : nlohmann::json(nullptr);
-    int rejected = 0;
-    nlohmann::json rejections = nlohmann::json::object();
-    for (const auto& p : shot.measured)
-      if (!p.usable()) {
-        ++rejected;
-        rejections[std::string(chart::reference()[static_cast<size_t>(p.patch)].name)] = p.rejection();
-      }
-    entry["rejected_patches"] = rejections;
-    // A shot without a single usable patch contributes nothing: say so rather than fit silently without it.
-    for (const auto* side : {&shot.measured, &shot.raw}) {
-      if (side->empty()) continue;
-      int usable = 0;
-      for (const auto& p : *side) usable += p.usable();
-      if (usable == 0)
-        input_warnings.push_back((side == &shot.raw ? args.raws[i] : args.images[i]) +
+  std::vector<std::string> warnings;
+};
+
+nlohmann::json rejectedPatches(const std::vector<chart::PatchStats>& measured) {
+  nlohmann::json rejections = nlohmann::json::object();
+  for (const auto& p : measured)
+    if (!p.usable()) rejections[std::string(chart::reference()[static_cast<size_t>(p.patch)].name)] = p.rejection();
+  return rejections;
+}
+
+// Image i: the chart found and rectified, its patches sampled (and those of its RAW rendering), its exposure.
+void sampleShot(const ChartArgs& args, const ChartCalibrationOptions& options, const io::ChartLayout& layout,
+                const std::vector<double>& exposures, size_t i, SampledCharts& sampled, Progress& progress) {
+  std::optional<chart::ChartCorners> corners;
+  if (!args.corners.empty()) corners = io::parseCorners(args.corners.size() == 1 ? args.corners[0] : args.corners[i]);
+  const io::LoadedChart loaded = io::loadChart(args.images[i], layout, corners);
+  ChartShot shot;
+  shot.name = std::filesystem::path(args.images[i]).filename().string();
+  shot.measured = chart::sampleRectified(loaded.rectified, args.sampling);
+  if (options.use_raw) {
+    // The RAW rendering of the same shot has the same geometry.
+    const io::LoadedChart raw = io::loadChart(args.raws[i], layout, loaded.corners);
+    shot.raw = chart::sampleRectified(raw.rectified, args.sampling);
+  }
+  if (!exposures.empty()) shot.exposure = exposures[i];
+  else if (!args.no_exif && !options.use_raw) {
+    const ExifExposure exif = io::readExif(args.images[i]);
+    if (exif.usable()) shot.exposure = *exif.iso * *exif.exposure_time / std::pow(exif.f_number.value_or(1.0), 2);
+  }
+  sampled.rectified.push_back(loaded.rectified);
+  nlohmann::json entry;
+  entry["image"] = args.images[i];
+  entry["rectified"] = "chart_" + std::to_string(i + 1) + ".png";
+  if (options.use_raw) entry["raw"] = args.raws[i];
+  entry["chart"] = loaded.how;
+  entry["corners"] = nlohmann::json::array();
+  for (const auto& p : loaded.corners) entry["corners"].push_back({p.x, p.y});
+  entry["exposure"] = shot.exposure > 0 ? nlohmann::json(shot.exposure) : nlohmann::json(nullptr);
+  entry["rejected_patches"] = rejectedPatches(shot.measured);
+  // A shot without a single usable patch contributes nothing: say so rather than fit silently without it.
+  for (const auto* side : {&shot.measured, &shot.raw}) {
+    if (side->empty()) continue;
+    int usable = 0;
+    for (const auto& p : *side) usable += p.usable();
+    if (usable == 0)
+      sampled.warnings.push_back((side == &shot.raw ? args.raws[i] : args.images[i]) +
                                  ": no usable patch (all clipped or non-uniform); the shot adds no data");
-    }
-    inputs.push_back(entry);
-    shots.push_back(std::move(shot));
-    progress.update(double(i + 1) / double(args.images.size()), loaded.how);
   }
-  if (!exposures.empty()) requireExposuresFollowBrightness(shots, args.images);
-  progress.done();
-  const double sample_seconds = seconds(start);
+  sampled.inputs.push_back(entry);
+  sampled.shots.push_back(std::move(shot));
+  progress.update(double(i + 1) / double(args.images.size()), loaded.how);
+}
 
-  const auto fit_start = std::chrono::steady_clock::now();
-  progress.stage("fit");
-  ChartCalibrationResult result;
-  try {
-    result = calibrateChart(shots, options, [&](double f, const std::string& d) { progress.update(f, d); });
-  } catch (const InvalidInput& e) {
-    // Too few usable patches: name the image with the most rejected patches and say why.
-    std::string worst;
-    int worst_clipped = -1, worst_non_uniform = 0;
-    for (size_t i = 0; i < shots.size(); ++i)
-      for (const bool raw : {false, true}) {
-        const auto& side = raw ? shots[i].raw : shots[i].measured;
-        int clipped = 0, non_uniform = 0;
-        for (const auto& p : side) clipped += p.clipped, non_uniform += !p.clipped && p.non_uniform;
-        if (!side.empty() && clipped + non_uniform > worst_clipped + worst_non_uniform) {
-          worst = raw ? args.raws[i] : args.images[i];
-          worst_clipped = clipped;
-          worst_non_uniform = non_uniform;
-        }
+// Too few usable patches: the refusal names the image with the most rejected patches and says why.
+[[noreturn]] void refuseTooFewPatches(const ChartArgs& args, const std::vector<ChartShot>& shots, const InvalidInput& e) {
+  std::string worst;
+  int worst_clipped = -1, worst_non_uniform = 0;
+  for (size_t i = 0; i < shots.size(); ++i)
+    for (const bool raw : {false, true}) {
+      const auto& side = raw ? shots[i].raw : shots[i].measured;
+      int clipped = 0, non_uniform = 0;
+      for (const auto& p : side) clipped += p.clipped, non_uniform += !p.clipped && p.non_uniform;
+      if (!side.empty() && clipped + non_uniform > worst_clipped + worst_non_uniform) {
+        worst = raw ? args.raws[i] : args.images[i];
+        worst_clipped = clipped;
+        worst_non_uniform = non_uniform;
       }
-    throw InvalidInput(e.reason() + "; in this image " + std::to_string(worst_clipped) + " of 24 patches are clipped, " +
-                           std::to_string(worst_non_uniform) + " non-uniform (wrong chart geometry? try --corners)",
-                       worst);
-  }
-  progress.done();
+    }
+  throw InvalidInput(e.reason() + "; in this image " + std::to_string(worst_clipped) + " of 24 patches are clipped, " +
+                         std::to_string(worst_non_uniform) + " non-uniform (wrong chart geometry? try --corners)",
+                     worst);
+}
 
+nlohmann::json channelJson(const ChartChannelResult& c) {
+  nlohmann::json ch;
+  ch["emor"] = {{"kind", "emor"}, {"parameters", c.fit.model.coefficients}, {"spec", describe(c.fit.model)}};
+  ch["terms"] = c.fit.terms;
+  ch["cv_rmse"] = nlohmann::json::object();
+  for (const auto& [k, e] : c.fit.cv_rmse) ch["cv_rmse"][std::to_string(k)] = e;
+  ch["rmse"] = c.fit.rmse;
+  ch["max_error"] = c.fit.max_error;
+  ch["scales"] = c.fit.scales;
+  ch["ggcm_rmse_vs_emor"] = c.ggcm_rmse;
+  ch["ggcm_valid"] = c.ggcm_valid;
+  ch["patch_samples"] = c.fit.observations;
+  ch["censored_samples"] = c.fit.censored;
+  ch["rejected_samples"] = c.rejected;
+  return ch;
+}
+
+// The curves and the chart section of report.json (timings and truth are added by the caller).
+io::CalibrationReport chartReport(const ChartArgs& args, const ChartCalibrationOptions& options,
+                                  const SampledCharts& sampled, const ChartCalibrationResult& result) {
   io::CalibrationReport report;
   report.command = "chart";
-  report.timings = {{"sample", sample_seconds}, {"fit", seconds(fit_start)}, {"total", seconds(start)}};
-  report.warnings = input_warnings;
+  report.warnings = sampled.warnings;
   report.warnings.insert(report.warnings.end(), result.warnings.begin(), result.warnings.end());
   nlohmann::json channels_json = nlohmann::json::object();
   nlohmann::json patches_json = nlohmann::json::array();
@@ -225,23 +224,10 @@ int runChart(ChartArgs args) {
     report.models[name] = c.ggcm;
     report.covered_range[name] = c.fit.covered_range;
     report.pixels_used[name] = c.fit.observations;
-    nlohmann::json ch;
-    ch["emor"] = {{"kind", "emor"}, {"parameters", c.fit.model.coefficients}, {"spec", describe(c.fit.model)}};
-    ch["terms"] = c.fit.terms;
-    ch["cv_rmse"] = nlohmann::json::object();
-    for (const auto& [k, e] : c.fit.cv_rmse) ch["cv_rmse"][std::to_string(k)] = e;
-    ch["rmse"] = c.fit.rmse;
-    ch["max_error"] = c.fit.max_error;
-    ch["scales"] = c.fit.scales;
-    ch["ggcm_rmse_vs_emor"] = c.ggcm_rmse;
-    ch["ggcm_valid"] = c.ggcm_valid;
-    ch["patch_samples"] = c.fit.observations;
-    ch["censored_samples"] = c.fit.censored;
-    ch["rejected_samples"] = c.rejected;
-    channels_json[name] = ch;
+    channels_json[name] = channelJson(c);
     for (const auto& p : c.patches)
       patches_json.push_back({{"channel", name},
-                              {"shot", shots[static_cast<size_t>(p.shot)].name},
+                              {"shot", sampled.shots[static_cast<size_t>(p.shot)].name},
                               {"patch", std::string(chart::reference()[static_cast<size_t>(p.patch)].name)},
                               {"x", p.x},
                               {"reference", p.reference},
@@ -249,43 +235,95 @@ int runChart(ChartArgs args) {
   }
   report.extra["chart"] = {{"reference", options.use_raw ? "raw" : chart::referenceSetName(options.reference)},
                            {"patches", options.use_raw ? args.patches : chart::referenceSetName(options.reference)},
-                           {"inputs", inputs},
+                           {"inputs", sampled.inputs},
                            {"channels", channels_json},
                            {"inverse_crf_model", "emor (models: its GGCM conversion, seed Eq. 19)"}};
   report.extra["patch_residuals"] = patches_json;
+  return report;
+}
 
+// --truth: each channel's error against the known curve (printed, and in report.json); returns the curves to plot.
+std::vector<std::pair<std::string, std::vector<double>>> compareWithTruth(const ChartArgs& args,
+                                                                          const ChartCalibrationResult& result,
+                                                                          io::CalibrationReport& report) {
   std::vector<std::pair<std::string, std::vector<double>>> truth_curves;
-  if (!args.truth.empty()) {
-    // The truth's covered range (a report's) is intersected with the calibration's, as `crfcal compare` does.
-    std::map<std::string, IntensityRange> truth_covered;
-    if (std::filesystem::path(args.truth).extension() == ".json") truth_covered = io::readReport(args.truth).covered_range;
-    nlohmann::json comparison = nlohmann::json::object();
-    if (!args.quiet)
-      std::printf("%-3s %10s %12s %12s %10s\n", "ch", "rmse[0,1]", "rmse covered", "rmse aligned", "max[0,1]");
-    for (const auto& c : result.channels) {
-      const std::string name = channelName(c.channel);
-      const std::vector<double> truth = io::readCurveTable(args.truth, name, kCurveSamples);
-      const auto it = truth_covered.find(name);
-      const ChannelComparison e =
-          compareCurves(truth, c.fit.inverse,
-                        it == truth_covered.end() ? std::optional<IntensityRange>() : std::optional<IntensityRange>(it->second),
-                        c.fit.covered_range);
-      comparison[name] = {{"rmse", e.rmse},
-                          {"rmse_covered", e.rmse_covered},
-                          {"rmse_covered_aligned", e.rmse_covered_aligned},
-                          {"scale_covered", e.scale_covered},
-                          {"covered_range", {e.covered.first, e.covered.second}},
-                          {"max_error", e.max_error},
-                          {"ggcm_rmse", curveRmse(truth, sampleInverse(c.ggcm, kCurveSamples))}};
-      truth_curves.emplace_back(name + " truth", truth);
-      std::printf("%-3s %10.4f %12.4f %12.4f %10.4f\n", name.c_str(), e.rmse, e.rmse_covered, e.rmse_covered_aligned,
-                  e.max_error);
-    }
-    report.extra["truth"] = {{"file", args.truth}, {"phi_error", comparison}};
+  // The truth's covered range (a report's) is intersected with the calibration's, as `crfcal compare` does.
+  std::map<std::string, IntensityRange> truth_covered;
+  if (std::filesystem::path(args.truth).extension() == ".json") truth_covered = io::readReport(args.truth).covered_range;
+  nlohmann::json comparison = nlohmann::json::object();
+  if (!args.quiet)
+    std::printf("%-3s %10s %12s %12s %10s\n", "ch", "rmse[0,1]", "rmse covered", "rmse aligned", "max[0,1]");
+  for (const auto& c : result.channels) {
+    const std::string name = channelName(c.channel);
+    const std::vector<double> truth = io::readCurveTable(args.truth, name, kCurveSamples);
+    const auto it = truth_covered.find(name);
+    const ChannelComparison e =
+        compareCurves(truth, c.fit.inverse,
+                      it == truth_covered.end() ? std::optional<IntensityRange>() : std::optional<IntensityRange>(it->second),
+                      c.fit.covered_range);
+    comparison[name] = {{"rmse", e.rmse},
+                        {"rmse_covered", e.rmse_covered},
+                        {"rmse_covered_aligned", e.rmse_covered_aligned},
+                        {"scale_covered", e.scale_covered},
+                        {"covered_range", {e.covered.first, e.covered.second}},
+                        {"max_error", e.max_error},
+                        {"ggcm_rmse", curveRmse(truth, sampleInverse(c.ggcm, kCurveSamples))}};
+    truth_curves.emplace_back(name + " truth", truth);
+    std::printf("%-3s %10.4f %12.4f %12.4f %10.4f\n", name.c_str(), e.rmse, e.rmse_covered, e.rmse_covered_aligned,
+                e.max_error);
   }
+  report.extra["truth"] = {{"file", args.truth}, {"phi_error", comparison}};
+  return truth_curves;
+}
+
+int runChart(ChartArgs args) {
+  Progress progress(args.quiet);
+  if (!args.raws.empty() && args.raws.size() != args.images.size())
+    throw InvalidInput("--raw needs one RAW image per IMAGE (" + std::to_string(args.images.size()) + ")");
+  if (!args.corners.empty() && args.corners.size() != 1 && args.corners.size() != args.images.size())
+    throw InvalidInput("--corners: give one set for all images or one per image");
+  const io::ChartLayout layout = io::parseChartLayout(args.layout);
+  // A bad --truth (NaN, decreasing, not a curve) is refused before the calibration, not after it; the same reader
+  // and validation as every other curve (io::readCurveTable, checkInverseSamples).
+  if (!args.truth.empty()) io::readCurveTable(args.truth, args.channels.find('G') != std::string::npos ? "G" : "R");
+  const ChartCalibrationOptions options = chartOptions(args);
+  std::vector<double> exposures;
+  if (!args.exposures.empty()) exposures = parseExposures(args.exposures, args.images.size());
+
+  // Decided before the computation: a refused or unwritable output directory fails at once.
+  std::vector<std::filesystem::path> input_files(args.images.begin(), args.images.end());
+  input_files.insert(input_files.end(), args.raws.begin(), args.raws.end());
+  input_files.push_back(args.truth);
+  io::OutputDirectory out(args.output, {"chart", input_files, args.force});
+
+  const auto start = std::chrono::steady_clock::now();
+  progress.stage("sample patches");
+  SampledCharts sampled;
+  for (size_t i = 0; i < args.images.size(); ++i) sampleShot(args, options, layout, exposures, i, sampled, progress);
+  if (!exposures.empty()) requireExposuresFollowBrightness(sampled.shots, args.images);
+  progress.done();
+  const double sample_seconds = secondsSince(start);
+
+  const auto fit_start = std::chrono::steady_clock::now();
+  progress.stage("fit");
+  ChartCalibrationResult result;
+  try {
+    result = calibrateChart(sampled.shots, options, [&](double f, const std::string& d) { progress.update(f, d); });
+  } catch (const InvalidInput& e) {
+    refuseTooFewPatches(args, sampled.shots, e);
+  }
+  progress.done();
+  const std::map<std::string, double> timings = {
+      {"sample", sample_seconds}, {"fit", secondsSince(fit_start)}, {"total", secondsSince(start)}};
+
+  io::CalibrationReport report = chartReport(args, options, sampled, result);
+  report.timings = timings;
+  std::vector<std::pair<std::string, std::vector<double>>> truth_curves;
+  if (!args.truth.empty()) truth_curves = compareWithTruth(args, result, report);
 
   io::writeReport(out.file("report.json"), report);
-  for (size_t i = 0; i < rectified.size(); ++i) io::writeImage(out.file("chart_" + std::to_string(i + 1) + ".png"), rectified[i]);
+  for (size_t i = 0; i < sampled.rectified.size(); ++i)
+    io::writeImage(out.file("chart_" + std::to_string(i + 1) + ".png"), sampled.rectified[i]);
   io::writeChartPlot(out.file("chart_fit.png"), result,
                      "ColorChecker: patches on the fitted curve (" +
                          std::string(options.use_raw ? "RAW reference" : chart::referenceSetName(options.reference)) +

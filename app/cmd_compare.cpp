@@ -63,6 +63,102 @@ std::vector<double> grid(size_t n) {
   return x;
 }
 
+CurveComparison::Range toleranceRange(const std::string& name) {
+  return name == "covered"   ? CurveComparison::Range::Covered
+         : name == "aligned" ? CurveComparison::Range::CoveredAligned
+                             : CurveComparison::Range::Full;
+}
+
+// The console table: per-channel errors, then both reports' exposure ratios.
+void printComparison(const CompareArgs& args, const io::CalibrationReport& a, const io::CalibrationReport& b,
+                     const CurveComparison& comparison) {
+  std::printf("A: %s\nB: %s\n\n%s\n", args.a.c_str(), args.b.c_str(), comparison.summary().c_str());
+  std::printf("exposure ratio  %-12s %-12s\n", "A", "B");
+  std::printf("  nominal       %-12s %-12s  (source: %s / %s)\n", ratioText(a.nominal_ratio).c_str(),
+              ratioText(b.nominal_ratio).c_str(), sourceText(a).c_str(), sourceText(b).c_str());
+  std::printf("  fitted        %-12s %-12s", ratioText(a.fitted_ratio).c_str(), ratioText(b.fitted_ratio).c_str());
+  if (a.fitted_ratio && b.fitted_ratio && *b.fitted_ratio != 0)
+    std::printf("  (A/B - 1 = %+.3e)", *a.fitted_ratio / *b.fitted_ratio - 1);
+  std::printf("\n");
+}
+
+// The overlaid curves of compare.png, built once per side and channel.
+struct CompareSeries {
+  const CurveComparison& comparison;
+  std::vector<io::PlotSeries> series;
+  std::vector<std::string> drawn;  // "A:G", "B:G", … — a grey side's single curve is drawn once, in black
+
+  void add(const io::CalibrationReport& report, const char* side, const std::string& channel, const cv::Scalar& color,
+           bool dashed) {
+    const std::string key = std::string(side) + ":" + channel;
+    if (std::find(drawn.begin(), drawn.end(), key) != drawn.end()) return;
+    drawn.push_back(key);
+    const bool grey = report.inverse_crf.size() == 1 && comparison.channels.size() > 1;
+    const auto& curve = report.inverse_crf.at(channel);
+    series.push_back({grid(curve.size()), curve, grey ? cv::Scalar(40, 40, 40) : color,
+                      std::string(side) + " " + channel, 2, false, dashed});
+  }
+};
+
+void writeComparePlot(io::OutputDirectory& out, const io::CalibrationReport& a, const io::CalibrationReport& b,
+                      const CurveComparison& comparison) {
+  CompareSeries plotted{comparison, {}, {}};
+  int index = 0;
+  for (const auto& c : comparison.channels) {
+    plotted.add(a, "A", c.channel_a, channelColor(c.channel, index), false);
+    plotted.add(b, "B", c.channel_b, channelColor(c.channel, index), true);
+    ++index;
+  }
+  // The covered range (where it is narrower than [0,1]): grey dashed verticals.
+  std::vector<double> edges;
+  for (const auto& c : comparison.channels)
+    for (double e : {c.covered.first, c.covered.second})
+      if (e > 0 && e < 1 && std::find(edges.begin(), edges.end(), e) == edges.end()) edges.push_back(e);
+  for (double e : edges)
+    plotted.series.push_back({{e, e}, {0.0, 1.0}, cv::Scalar(150, 150, 150), "", 1, false, true});
+  io::PlotOptions plot;
+  plot.title = "inverse CRF phi: A (solid) vs B (dashed)";
+  plot.x_label = "intensity x";
+  plot.y_label = "phi(x)";
+  plot.x_min = 0;
+  plot.x_max = 1;
+  plot.y_min = 0;
+  plot.y_max = 1;
+  io::writePlot(out.file("compare.png"), plotted.series, plot);
+}
+
+nlohmann::json compareJson(const CompareArgs& args, const io::CalibrationReport& a, const io::CalibrationReport& b,
+                           const CurveComparison& comparison, bool pass) {
+  nlohmann::json json;
+  json["a"] = args.a;
+  json["b"] = args.b;
+  json["samples"] = args.samples;
+  json["channels"] = nlohmann::json::array();
+  for (const auto& c : comparison.channels)
+    json["channels"].push_back({{"channel", c.channel},
+                                {"channel_a", c.channel_a},
+                                {"channel_b", c.channel_b},
+                                {"rmse", c.rmse},
+                                {"max_error", c.max_error},
+                                {"argmax", c.argmax},
+                                {"covered_range", {c.covered.first, c.covered.second}},
+                                {"covered_source", c.covered_source},
+                                {"rmse_covered", c.rmse_covered},
+                                {"max_error_covered", c.max_error_covered},
+                                {"scale_covered", c.scale_covered},
+                                {"rmse_covered_aligned", c.rmse_covered_aligned}});
+  json["worst_rmse"] = comparison.worst_rmse;
+  json["worst_rmse_covered"] = comparison.worst_rmse_covered;
+  json["worst_rmse_covered_aligned"] = comparison.worst_rmse_covered_aligned;
+  json["exposure_ratio"] = {{"a", ratiosJson(a)}, {"b", ratiosJson(b)}};
+  if (args.tolerance) {
+    json["tolerance"] = *args.tolerance;
+    json["tolerance_range"] = args.tolerance_range;
+    json["within_tolerance"] = pass;
+  }
+  return json;
+}
+
 int runCompare(const CompareArgs& args) {
   // Decided first: a refused or unwritable output directory fails at once.
   std::optional<io::OutputDirectory> staged;
@@ -73,87 +169,15 @@ int runCompare(const CompareArgs& args) {
   options.samples = args.samples;
   const CurveComparison comparison = compareChannels(a.inverse_crf, b.inverse_crf, a.covered_range, b.covered_range, options);
 
-  const CurveComparison::Range range = args.tolerance_range == "covered"   ? CurveComparison::Range::Covered
-                                       : args.tolerance_range == "aligned" ? CurveComparison::Range::CoveredAligned
-                                                                           : CurveComparison::Range::Full;
+  const CurveComparison::Range range = toleranceRange(args.tolerance_range);
   const bool pass = !args.tolerance || comparison.withinTolerance(*args.tolerance, range);
 
-  if (!args.quiet) {
-    std::printf("A: %s\nB: %s\n\n%s\n", args.a.c_str(), args.b.c_str(), comparison.summary().c_str());
-    std::printf("exposure ratio  %-12s %-12s\n", "A", "B");
-    std::printf("  nominal       %-12s %-12s  (source: %s / %s)\n", ratioText(a.nominal_ratio).c_str(),
-                ratioText(b.nominal_ratio).c_str(), sourceText(a).c_str(), sourceText(b).c_str());
-    std::printf("  fitted        %-12s %-12s", ratioText(a.fitted_ratio).c_str(), ratioText(b.fitted_ratio).c_str());
-    if (a.fitted_ratio && b.fitted_ratio && *b.fitted_ratio != 0)
-      std::printf("  (A/B - 1 = %+.3e)", *a.fitted_ratio / *b.fitted_ratio - 1);
-    std::printf("\n");
-  }
+  if (!args.quiet) printComparison(args, a, b, comparison);
 
   if (!args.output.empty()) {
     io::OutputDirectory& out = *staged;
-    std::vector<io::PlotSeries> series;
-    std::vector<std::string> drawn;  // "A:G", "B:G", … — a grey side's single curve is drawn once, in black
-    auto add = [&](const io::CalibrationReport& report, const char* side, const std::string& channel,
-                   const cv::Scalar& color, bool dashed) {
-      const std::string key = std::string(side) + ":" + channel;
-      if (std::find(drawn.begin(), drawn.end(), key) != drawn.end()) return;
-      drawn.push_back(key);
-      const bool grey = report.inverse_crf.size() == 1 && comparison.channels.size() > 1;
-      const auto& curve = report.inverse_crf.at(channel);
-      series.push_back({grid(curve.size()), curve, grey ? cv::Scalar(40, 40, 40) : color,
-                        std::string(side) + " " + channel, 2, false, dashed});
-    };
-    int index = 0;
-    for (const auto& c : comparison.channels) {
-      add(a, "A", c.channel_a, channelColor(c.channel, index), false);
-      add(b, "B", c.channel_b, channelColor(c.channel, index), true);
-      ++index;
-    }
-    // The covered range (where it is narrower than [0,1]): grey dashed verticals.
-    std::vector<double> edges;
-    for (const auto& c : comparison.channels)
-      for (double e : {c.covered.first, c.covered.second})
-        if (e > 0 && e < 1 && std::find(edges.begin(), edges.end(), e) == edges.end()) edges.push_back(e);
-    for (double e : edges)
-      series.push_back({{e, e}, {0.0, 1.0}, cv::Scalar(150, 150, 150), "", 1, false, true});
-    io::PlotOptions plot;
-    plot.title = "inverse CRF phi: A (solid) vs B (dashed)";
-    plot.x_label = "intensity x";
-    plot.y_label = "phi(x)";
-    plot.x_min = 0;
-    plot.x_max = 1;
-    plot.y_min = 0;
-    plot.y_max = 1;
-    io::writePlot(out.file("compare.png"), series, plot);
-
-    nlohmann::json json;
-    json["a"] = args.a;
-    json["b"] = args.b;
-    json["samples"] = args.samples;
-    json["channels"] = nlohmann::json::array();
-    for (const auto& c : comparison.channels)
-      json["channels"].push_back({{"channel", c.channel},
-                                  {"channel_a", c.channel_a},
-                                  {"channel_b", c.channel_b},
-                                  {"rmse", c.rmse},
-                                  {"max_error", c.max_error},
-                                  {"argmax", c.argmax},
-                                  {"covered_range", {c.covered.first, c.covered.second}},
-                                  {"covered_source", c.covered_source},
-                                  {"rmse_covered", c.rmse_covered},
-                                  {"max_error_covered", c.max_error_covered},
-                                  {"scale_covered", c.scale_covered},
-                                  {"rmse_covered_aligned", c.rmse_covered_aligned}});
-    json["worst_rmse"] = comparison.worst_rmse;
-    json["worst_rmse_covered"] = comparison.worst_rmse_covered;
-    json["worst_rmse_covered_aligned"] = comparison.worst_rmse_covered_aligned;
-    json["exposure_ratio"] = {{"a", ratiosJson(a)}, {"b", ratiosJson(b)}};
-    if (args.tolerance) {
-      json["tolerance"] = *args.tolerance;
-      json["tolerance_range"] = args.tolerance_range;
-      json["within_tolerance"] = pass;
-    }
-    io::writeTextFile(out.file("compare.json"), json.dump(2) + "\n");
+    writeComparePlot(out, a, b, comparison);
+    io::writeTextFile(out.file("compare.json"), compareJson(args, a, b, comparison, pass).dump(2) + "\n");
     out.commit();
     if (!args.quiet) std::printf("wrote %s/{compare.png, compare.json}\n", args.output.c_str());
   }
