@@ -126,7 +126,7 @@ struct EffectInputs {
   std::map<std::string, CrfFitResult> fits;        // the base fits
   cv::Mat kernel;                                  // the global kernel
   bool kernel_estimated = true;                    // false (given kernel): spatially_varying_blur not tested
-  double exif_ratio = 0;                           // ≤ 0: unknown (exposure_ratio_mismatch not tested)
+  double nominal_ratio = 0;  // EXIF or --ratio (the r the fit starts from); ≤ 0: unknown (exposure_ratio_mismatch not tested)
   cv::Point2d centre{-1, -1};                      // optical centre in window coordinates (< 0: window centre)
   double corner_radius = 0;                        // normalising radius (≤ 0: half-diagonal of the window)
   cv::Mat valid;                                   // optional CV_8U: usable pixels (registration overlap)
