@@ -60,6 +60,11 @@
 // keeps the fitted φ when the fitter uses no σ (noise handling none: the pixels are selected by B alone, so the
 // noise law only changes the weights; what remains is the second-order Jensen bias of φ(I), as for homoscedastic
 // noise of the same power) — the entry says so.
+// The refit guard (effect_refit_guard.cpp): the refit's φ is adopted only when it is physically plausible (r on
+// EXIF's side of 1, a vignetting corner gain within 0.5–2, r no further from EXIF than the base fit's by more than
+// ratio_tolerance) and its held-out error — φ and r as reported, each under the model it was fitted under, the models'
+// parameters fitted on one fold and measured on the other — is not larger than the base fit's. Otherwise the base
+// fit's φ is reported, the effects stay named and the reason is recorded (refit_rejected_reason).
 // Code: the search's stages in effect_search.cpp, the shared residual problem in effect_problem.hpp, one file per
 // effect test (effect_<name>.cpp); adding an effect is one file, one registry line and its name
 // in effectNames() (effect_problem.hpp says how).
