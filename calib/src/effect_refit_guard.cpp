@@ -14,7 +14,8 @@
 //      parameters fitted on one fold of the checkerboard and the error measured on the other, both ways (the same
 //      folds and samples as the search, effects.hpp). The refit is adopted only when its held-out error is not
 //      larger than the base fit's: the comparison is between two fitted curves, so no threshold is needed beyond
-//      "not worse".
+//      "not worse". A spatially varying blur's refit (per-tile kernels) is judged by 1. only: the residual problem
+//      holds one kernel, and its own model was tested on the same folds by its check.
 // A rejected refit leaves the detected effects named (the report says what the data show); only its φ is not
 // reported, and the reason is recorded (EffectReport::refit_rejected_reason).
 #include <cmath>

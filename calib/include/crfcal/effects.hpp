@@ -64,7 +64,8 @@
 // EXIF's side of 1, a vignetting corner gain within 0.5–2, r no further from EXIF than the base fit's by more than
 // ratio_tolerance) and its held-out error — φ and r as reported, each under the model it was fitted under, the models'
 // parameters fitted on one fold and measured on the other — is not larger than the base fit's. Otherwise the base
-// fit's φ is reported, the effects stay named and the reason is recorded (refit_rejected_reason).
+// fit's φ is reported, the effects stay named and the reason is recorded (refit_rejected_reason). A spatially
+// varying blur's per-tile refit gets the plausibility checks only (the residual problem holds one kernel).
 // Code: the search's stages in effect_search.cpp, the shared residual problem in effect_problem.hpp, one file per
 // effect test (effect_<name>.cpp); adding an effect is one file, one registry line and its name
 // in effectNames() (effect_problem.hpp says how).
