@@ -298,6 +298,11 @@ std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const 
                                               const std::vector<ChannelFit>& ff, bool with_blur, bool with_noise,
                                               double fixed_ratio);
 
+// The refit guard (effect_refit_guard.cpp): report.fits (the selected model's refit) is kept only when the refit is
+// physically plausible and explains the held-back pixels at least as well as the base fit; else it moves to
+// report.rejected_fits with the reason.
+void guardRefit(EffectSearch& search);
+
 // ---- the effects ---------------------------------------------------------------------------------------------------
 
 // The pair as the selected model corrects it before the refit (refitPair): each selected LevelEffect corrects it.

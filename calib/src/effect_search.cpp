@@ -273,6 +273,7 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
   describeSelectedModel(search);
   for (const ModelCheck* check : modelChecks()) check->run(search);
   refitWithSelectedModel(search);
+  guardRefit(search);
   search.report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return search.report;
 }

@@ -60,7 +60,18 @@ std::string EffectReport::summary() const {
     }
     s << buffer;
   }
-  if (!fits.empty()) s << "\n  phi refitted with the extended model";
+  if (refit_adopted) {
+    char buffer[200];
+    std::snprintf(buffer, sizeof buffer,
+                  "\n  phi refitted with the extended model (held-out error %.3g vs the base fit's %.3g)",
+                  heldout_error_refit, heldout_error_base_fit);
+    s << buffer;
+  } else if (refit_tried) {
+    char buffer[200];
+    std::snprintf(buffer, sizeof buffer, " (held-out error of the refit %.3g, of the base fit %.3g)",
+                  heldout_error_refit, heldout_error_base_fit);
+    s << "\n  refit with the extended model rejected, the base fit's phi kept: " << refit_rejected_reason << buffer;
+  }
   return s.str();
 }
 

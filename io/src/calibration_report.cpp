@@ -213,6 +213,15 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
   addExposureRatio(result, context, extra);
   extra["kernel"] = kernelJson(result);
   extra["registration"] = registrationJson(result.registration);
+  if (result.effects.refit_tried) {  // the refit guard (effects.hpp): whose φ is reported and why
+    extra["effects_refit"] = {{"adopted", result.effects.refit_adopted},
+                              {"rejected_reason", result.effects.refit_rejected_reason},
+                              {"heldout_error_base_fit", result.effects.heldout_error_base_fit},
+                              {"heldout_error_refit", result.effects.heldout_error_refit}};
+    if (!result.effects.refit_adopted)
+      report.warnings.push_back("effects: the extended model's refit was rejected (" +
+                                result.effects.refit_rejected_reason + "); the base fit's phi is reported");
+  }
   addFitDetails(result, extra);
   if (context.raw_truth) {
     if (context.raw_truth->compared_on_full_range_only)

@@ -60,6 +60,12 @@
 // keeps the fitted φ when the fitter uses no σ (noise handling none: the pixels are selected by B alone, so the
 // noise law only changes the weights; what remains is the second-order Jensen bias of φ(I), as for homoscedastic
 // noise of the same power) — the entry says so.
+// The refit guard (effect_refit_guard.cpp): the refit's φ is adopted only when it is physically plausible (r on
+// EXIF's side of 1, a vignetting corner gain within 0.5–2, r no further from EXIF than the base fit's by more than
+// ratio_tolerance) and its held-out error — φ and r as reported, each under the model it was fitted under, the models'
+// parameters fitted on one fold and measured on the other — is not larger than the base fit's. Otherwise the base
+// fit's φ is reported, the effects stay named and the reason is recorded (refit_rejected_reason). A spatially
+// varying blur's per-tile refit gets the plausibility checks only (the residual problem holds one kernel).
 // Code: the search's stages in effect_search.cpp, the shared residual problem in effect_problem.hpp, one file per
 // effect test (effect_<name>.cpp); adding an effect is one file, one registry line and its name
 // in effectNames() (effect_problem.hpp says how).
@@ -113,6 +119,14 @@ struct EffectReport {
   std::map<std::string, CrfFitResult> fits;      // φ per channel from the extended model (empty: no refit)
   int samples = 0;                               // residual samples per channel
   double base_error = 0;                         // held-out Σe² / n of the base model (intensity units²)
+  // The refit guard (effect_refit_guard.cpp): a refit's φ replaces the base fit's only when it is physically
+  // plausible and explains the held-back pixels at least as well as the base fit (each φ under its own model).
+  bool refit_tried = false;                      // a detected effect asked for a refit and the refit succeeded
+  bool refit_adopted = false;                    // the refit's φ is reported (fits non-empty)
+  std::string refit_rejected_reason;             // why the base fit was kept (empty when adopted or not tried)
+  double heldout_error_base_fit = 0;             // held-out Σe² / n: base φ and r under the base model
+  double heldout_error_refit = 0;                // held-out Σe² / n: refitted φ and r under the selected model
+  std::map<std::string, CrfFitResult> rejected_fits;  // a rejected refit's φ per channel (for comparison)
   double seconds = 0;
   std::vector<std::string> detected() const;
   const EffectEntry* find(const std::string& name) const;

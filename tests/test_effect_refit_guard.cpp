@@ -1,0 +1,111 @@
+// The refit guard (calib/src/effect_refit_guard.cpp): a detected effect's refit is adopted only when it is physically
+// plausible and explains the held-back pixels at least as well as the base fit; the effect stays named either way.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+
+#include <opencv2/core.hpp>
+
+#include "crfcal/crf_fitter.hpp"
+#include "crfcal/effect_planting.hpp"
+#include "crfcal/effects.hpp"
+#include "crfcal/io/response_io.hpp"
+#include "test_support.hpp"
+
+namespace crfcal {
+namespace {
+
+using test::levinImage;
+using test::levinKernel;
+using test::samples;
+
+cv::Mat photoPair() {
+  cv::Mat a, b, out;
+  levinImage(1).convertTo(a, CV_8U, 255.0);
+  levinImage(3).convertTo(b, CV_8U, 255.0);
+  cv::hconcat(a, b, out);
+  return out;
+}
+
+struct GuardCase {
+  EffectReport report;
+  double base_ratio = 0;
+};
+
+// A clean pair whose blurred shot got LESS light (true r = 0.8) while EXIF claims 1.25, the base fit held at EXIF's
+// r (a trapped fitter): the diagnostics name exposure_ratio_mismatch and offer a refit with r ≈ 0.8 < 1, which
+// contradicts EXIF's direction of the light and moves r 36 % away from it.
+GuardCase ratioAgainstExif() {
+  const ResponseModel truth = TableModel{io::readCurveTable(samples() / "camera_curves" / "NikonD70.csv")};
+  const cv::Mat K = levinKernel(2);
+  PlantingOptions po;
+  po.ratio = 0.8;
+  po.seed = 5;
+  const PlantedPair pair = plantEffect(photoPair(), truth, K, po);
+  CrfFitOptions held;
+  held.nominal_ratio = 1.25;
+  held.fit_ratio = false;
+  EffectInputs in;
+  in.channels = {"G"};
+  in.sharp["G"] = pair.sharp;
+  in.blurred["G"] = pair.blurred;
+  in.fits["G"] = fitInverseCrf(pair.sharp, pair.blurred, K, held);
+  in.kernel = K;
+  in.kernel_estimated = false;
+  in.exif_ratio = 1.25;
+  in.fit = held;
+  in.fit.fit_ratio = true;  // the refit may move r: the guard must judge where it goes
+  GuardCase c;
+  c.base_ratio = in.fits["G"].ratio;
+  c.report = diagnoseEffects(in);
+  return c;
+}
+
+TEST(EffectRefitGuard, RefitContradictingExifIsRejectedAndTheEffectStaysNamed) {
+  const GuardCase c = ratioAgainstExif();
+  ASSERT_NEAR(c.base_ratio, 1.25, 1e-9);
+  const auto detected = c.report.detected();
+  ASSERT_NE(std::find(detected.begin(), detected.end(), "exposure_ratio_mismatch"), detected.end())
+      << c.report.summary();
+  EXPECT_TRUE(c.report.fits.empty()) << "the refit's phi must not be reported\n" << c.report.summary();
+  ASSERT_TRUE(c.report.refit_tried) << c.report.summary();
+  EXPECT_FALSE(c.report.refit_adopted) << c.report.summary();
+  ASSERT_EQ(c.report.rejected_fits.count("G"), 1u);
+  EXPECT_LT(c.report.rejected_fits.at("G").ratio, 1.0);  // what was offered: less light in the blurred shot
+  EXPECT_NE(c.report.refit_rejected_reason.find("EXIF"), std::string::npos) << c.report.refit_rejected_reason;
+  EXPECT_NE(c.report.summary().find("rejected"), std::string::npos);
+}
+
+TEST(EffectRefitGuard, PlausibleRefitOfAPlantedOffsetIsAdopted) {
+  // The guard must not reject everything: a planted offset (the detector's own form, EXIF right) is corrected and
+  // its refit explains the held-back pixels better than the base fit.
+  const ResponseModel truth = TableModel{io::readCurveTable(samples() / "camera_curves" / "CanonPowerShotG9.csv")};
+  const cv::Mat K = levinKernel(1);
+  PlantingOptions po;
+  po.effect = "black_level_offset";
+  po.strength = 2 * plantingThreshold("black_level_offset");
+  po.ratio = 1.25;
+  po.seed = 15;
+  const PlantedPair pair = plantEffect(photoPair(), truth, K, po);
+  CrfFitOptions fo;
+  fo.nominal_ratio = pair.exif_ratio;
+  EffectInputs in;
+  in.channels = {"G"};
+  in.sharp["G"] = pair.sharp;
+  in.blurred["G"] = pair.blurred;
+  in.fits["G"] = fitInverseCrf(pair.sharp, pair.blurred, K, fo);
+  in.kernel = K;
+  in.kernel_estimated = false;
+  in.exif_ratio = pair.exif_ratio;
+  in.fit = fo;
+  const EffectReport report = diagnoseEffects(in);
+  const auto detected = report.detected();
+  ASSERT_NE(std::find(detected.begin(), detected.end(), "black_level_offset"), detected.end()) << report.summary();
+  ASSERT_TRUE(report.refit_tried) << report.summary();
+  EXPECT_TRUE(report.refit_adopted) << report.refit_rejected_reason << "\n" << report.summary();
+  EXPECT_LE(report.heldout_error_refit, report.heldout_error_base_fit);
+  EXPECT_FALSE(report.fits.empty());
+}
+
+}  // namespace
+}  // namespace crfcal
