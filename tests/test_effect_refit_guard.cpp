@@ -52,7 +52,7 @@ GuardCase ratioAgainstExif() {
   in.fits["G"] = fitInverseCrf(pair.sharp, pair.blurred, K, held);
   in.kernel = K;
   in.kernel_estimated = false;
-  in.exif_ratio = 1.25;
+  in.nominal_ratio = 1.25;
   in.fit = held;
   in.fit.fit_ratio = true;  // the refit may move r: the guard must judge where it goes
   GuardCase c;
@@ -96,7 +96,7 @@ TEST(EffectRefitGuard, PlausibleRefitOfAPlantedOffsetIsAdopted) {
   in.fits["G"] = fitInverseCrf(pair.sharp, pair.blurred, K, fo);
   in.kernel = K;
   in.kernel_estimated = false;
-  in.exif_ratio = pair.exif_ratio;
+  in.nominal_ratio = pair.exif_ratio;
   in.fit = fo;
   const EffectReport report = diagnoseEffects(in);
   const auto detected = report.detected();

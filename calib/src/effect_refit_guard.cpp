@@ -42,7 +42,7 @@ double heldoutError(const EffectSearch& search, const std::vector<Curve>& curves
 // Why the refit is physically implausible; empty when it is plausible.
 std::string implausibility(const EffectSearch& search) {
   const EffectInputs& in = search.in;
-  const double exif = in.exif_ratio, tolerance = search.options.ratio_tolerance;
+  const double exif = in.nominal_ratio, tolerance = search.options.ratio_tolerance;
   char buffer[300];
   for (int c = 0; c < search.nc; ++c) {
     const std::string& name = in.channels[c];
