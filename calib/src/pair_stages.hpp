@@ -102,7 +102,8 @@ double sameSceneCorrelation(const cv::Mat& sharp_g, const cv::Mat& blurred_g_in_
 // Below this the pair is refused as two different scenes at once. Measured (docs/RESULTS.md, "two different
 // scenes"): unrelated pairs that register 0.08 at most; real and semi-real pairs 0.67 and more with Levin kernels
 // 1, 3, 8, but 0.28 for a semi-real pair with the long straight Levin kernel 4 (a linear blur wipes the edges along
-// it, which no isotropic smoothing of the sharp shot reproduces) — so the floor stays well below that.
+// it, which no isotropic smoothing of the sharp shot reproduces) and 0.25–0.26 for two planted signal-dependent-noise
+// pairs of `bench effects` — so the floor stays well below those.
 constexpr double min_same_scene_correlation = 0.15;
 // Between the floor and this, a pair is only doubtful: when a later stage fails (the kernel grows to its size
 // limit, no edges), the failure is reported as two different scenes with the stage's own reason.
