@@ -127,21 +127,19 @@ double profiledRatio(const MomentSystem& sys, const std::vector<double>& f) {
   return std::clamp(hf.dot(nf) / std::max(hf.squaredNorm(), 1e-300), 0.05, 20.0);
 }
 
-}  // namespace
-
-ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vector<std::vector<double>> starts,
-                         double r0, bool fit_ratio, int max_iterations, bool with_prior) {
+// Levenberg–Marquardt from each non-empty start (the model's parameters, then log r when it is fitted); the lowest
+// cost wins. `evaluations_per_call`: energy evaluations one residual call costs (for the fit's counters).
+ModelFit bestOfStarts(const Curve& curve, const std::vector<std::vector<double>>& starts, double r0, bool fit_ratio,
+                      const ResidualFn& fn, int max_iterations, int evaluations_per_call) {
   const int d = curve.dims();
-  const MomentResiduals residuals(curve, sys, r0, fit_ratio, with_prior);
-  const ResidualFn fn = std::cref(residuals);
-  if (curve.kind() == Curve::kEmor && starts.empty()) starts = emorLinearStarts(curve, sys, r0);
   ModelFit best;
   for (const auto& s : starts) {
+    if (s.empty()) continue;
     Eigen::VectorXd p(d + (fit_ratio ? 1 : 0));
     for (int j = 0; j < d; ++j) p[j] = s[j];
     if (fit_ratio) p[d] = std::log(r0);
     const LmResult lm = levenbergMarquardt(p, fn, max_iterations);
-    best.evaluations += lm.evaluations;
+    best.evaluations += lm.evaluations * evaluations_per_call;
     best.iterations += lm.iterations;
     if (lm.cost < best.energy) {
       best.energy = lm.cost;
@@ -151,6 +149,16 @@ ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vecto
   }
   if (!best.x.empty()) best.valid = isValid(curve.model(best.x));
   return best;
+}
+
+}  // namespace
+
+ModelFit fitModelMoments(const Curve& curve, const MomentSystem& sys, std::vector<std::vector<double>> starts,
+                         double r0, bool fit_ratio, int max_iterations, bool with_prior) {
+  const MomentResiduals residuals(curve, sys, r0, fit_ratio, with_prior);
+  const ResidualFn fn = std::cref(residuals);
+  if (curve.kind() == Curve::kEmor && starts.empty()) starts = emorLinearStarts(curve, sys, r0);
+  return bestOfStarts(curve, starts, r0, fit_ratio, fn, max_iterations, 1);
 }
 
 ModelFit fitModelCue(const Curve& curve, const MomentSystem& sys, const CueModel& cue,
@@ -191,23 +199,8 @@ ModelFit fitModelCue(const Curve& curve, const MomentSystem& sys, const CueModel
     }
     return true;
   };
-  ModelFit best;
-  for (const auto& s : starts) {
-    if (s.empty()) continue;
-    Eigen::VectorXd p(d + (fit_ratio ? 1 : 0));
-    for (int j = 0; j < d; ++j) p[j] = s[j];
-    if (fit_ratio) p[d] = std::log(r0);
-    const LmResult lm = levenbergMarquardt(p, fn, max_iterations);
-    best.evaluations += lm.evaluations * (d + 2);
-    best.iterations += lm.iterations;
-    if (lm.cost < best.energy) {
-      best.energy = lm.cost;
-      best.x.assign(lm.x.data(), lm.x.data() + d);
-      best.ratio = fit_ratio ? std::exp(lm.x[d]) : r0;
-    }
-  }
-  if (!best.x.empty()) best.valid = isValid(curve.model(best.x));
-  return best;
+  // Each residual call also evaluates d + 1 finite-difference columns: counted as energy evaluations.
+  return bestOfStarts(curve, starts, r0, fit_ratio, fn, max_iterations, d + 2);
 }
 
 ModelFit fitGgcmNelderMead(const Curve& ggcm_curve, const MomentSystem& full,
