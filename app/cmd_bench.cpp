@@ -26,6 +26,7 @@
 #include "crfcal/ggcm.hpp"
 #include "crfcal/level_mixture.hpp"
 #include "crfcal/response_curve.hpp"
+#include "crfcal/simex.hpp"
 #include "crfcal/simulation.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/image_io.hpp"
@@ -109,6 +110,7 @@ struct Variant {
   std::string description;
   CrfFitOptions options;
   bool true_sigma = false;  // oracle σ (ablation only)
+  std::optional<SimexOptions> simex{};  // set: SIMEX around the fit (calib/include/crfcal/simex.hpp)
 };
 
 std::vector<Variant> allVariants() {
@@ -138,6 +140,11 @@ std::vector<Variant> allVariants() {
   d = CrfFitOptions{};
   d.position_bins = 1;
   v.push_back({"moments-1pos", "default with B-level bins only (no local min/max instruments)", d});
+  SimexOptions simex;
+  v.push_back({"simex", "default + SIMEX: refits at added noise 0.5-2 sigma^2 (2 draws each), quadratic back to zero noise",
+               CrfFitOptions{}, false, simex});
+  simex.extrapolation_degree = 1;
+  v.push_back({"simex-linear", "default + SIMEX with a linear extrapolation", CrfFitOptions{}, false, simex});
   d.position_bins = 8;
   v.push_back({"moments-8pos", "default with 8x8 local min/max bins per B level", d});
   d = CrfFitOptions{};
@@ -295,7 +302,8 @@ void fitVariant(const Variant& v, const SimulationResult& pair, const cv::Mat& k
   if (v.true_sigma) options.noise_sigma = out.sigma_true;
   const auto t0 = std::chrono::steady_clock::now();
   try {
-    const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
+    const CrfFitResult fit = v.simex ? fitInverseCrfSimex(pair.sharp, pair.blurred, kernel, options, *v.simex)
+                                     : fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
     out.seconds[v.name] = since(t0);
     out.rmse[v.name] = curveRmse(fit.inverse_crf, truth);
     out.shape[v.name] = shapeRmse(fit.inverse_crf, truth);
@@ -656,7 +664,7 @@ const BenchRegistration synthetic_registration(
       command.add_option("--variants", args->variants,
                          "Extra ablation variants: seed+denoise seed+debias seed-fixr moments+debias moments+debias+cue "
                          "moments+cue moments+denoise moments-1pos moments-8pos default+true-sigma default-ggcm "
-                         "default-emor default-ggcm-nm default-fixr");
+                         "default-emor default-ggcm-nm default-fixr simex simex-linear");
       command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::Range(1, kMaxThreads));
       command.add_option("--ratio", args->ratio, "Exposure ratio r of the simulated pairs (seed: 1)")
           ->check(exposureRatioOption(false));
