@@ -32,6 +32,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/image_io.hpp"
+#include "crfcal/io/jpeg_roundtrip.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/response_io.hpp"
 #include "crfcal/pair_calibration.hpp"
@@ -61,6 +62,9 @@ struct EffectsArgs {
   std::string form = "detector";  // PlantingOptions::form ("held-out" on the command line)
   bool two_effects = false;       // the default case list: pairs of effects
   double ratio = 0;               // > 0: r drawn in [0.9, 1.1]·ratio, the sharp shot's exposure divided by r
+  int jpeg_quality = 0;           // > 0: both shots through a 4:2:0 JPEG of this quality
+  bool handheld = false;          // B shifted 2–4 px and turned by up to 0.3°, registration on
+  std::vector<std::string> photos;  // other scenes instead of the bundled ones (longest side scaled to 512 px)
 };
 
 // Pairs of effects planted together (--two-effects): each pairs effects whose detectors compete for the same misfit.
@@ -101,6 +105,25 @@ struct Sources {
   std::vector<fs::path> curves;
 };
 
+// Other scenes: each photo (longest side 512 px) serves as the grey scene and, in colour, as the colour scene.
+Sources loadPhotos(const std::vector<std::string>& photos, Sources s) {
+  s.mosaic.clear();
+  s.colour.release();
+  std::vector<cv::Mat> colours;
+  for (const auto& path : photos) {
+    cv::Mat m = io::readColorImage(path);
+    const double scale = 512.0 / std::max(m.cols, m.rows);
+    if (scale < 1) cv::resize(m, m, cv::Size(), scale, scale, cv::INTER_AREA);
+    colours.push_back(m);
+    cv::Mat grey;
+    cv::cvtColor(m, grey, cv::COLOR_BGR2GRAY);
+    s.mosaic.push_back(grey);
+  }
+  while (s.mosaic.size() < 4) s.mosaic.push_back(s.mosaic[s.mosaic.size() % photos.size()]);
+  s.colour = colours.front();
+  return s;
+}
+
 Sources loadSources() {
   const fs::path samples = io::samplesDirectory();
   Sources s;
@@ -135,7 +158,7 @@ struct Setup {
 
 // The case of (effect, seed): photo, curve, kernel, r, noise seed drawn from the seed; strength factor × threshold.
 Setup makeSetup(const Sources& src, const std::string& effect, int seed, double factor, const std::string& form,
-                double ratio) {
+                double ratio, bool handheld) {
   std::mt19937_64 rng(static_cast<std::uint64_t>(seed) * 7919 + std::hash<std::string>{}(effect));
   std::uniform_real_distribution<double> u(0, 1);
   Setup s;
@@ -164,8 +187,16 @@ Setup makeSetup(const Sources& src, const std::string& effect, int seed, double 
   }
   s.planting.form = form;
   s.planting.seed = static_cast<std::uint64_t>(seed);
+  if (handheld) {  // its own stream: the cases without it stay what they were
+    std::mt19937_64 motion(static_cast<std::uint64_t>(seed) * 104729 + 3);
+    std::uniform_real_distribution<double> m(0, 1);
+    const double angle = 2 * CV_PI * m(motion), shift = 2 + 2 * m(motion);
+    s.planting.shift_x = shift * std::cos(angle);
+    s.planting.shift_y = shift * std::sin(angle);
+    s.planting.rotation_deg = 0.6 * m(motion) - 0.3;
+  }
   PairCalibrationOptions& o = s.calibration;
-  o.register_pair = false;
+  o.register_pair = handheld;
   o.rgb = colour;
   if (large) {
     o.kernel.kernel_size = 31;
@@ -179,7 +210,8 @@ Setup makeSetup(const Sources& src, const std::string& effect, int seed, double 
 
 CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::string& effect, int seed, double factor,
                    bool effects_on) {
-  Setup s = makeSetup(src, effect, seed, factor, args.form == "held-out" ? "held_out" : "detector", args.ratio);
+  Setup s = makeSetup(src, effect, seed, factor, args.form == "held-out" ? "held_out" : "detector", args.ratio,
+                      args.handheld);
   CaseResult r;
   r.effect = effect;
   r.seed = seed;
@@ -188,7 +220,11 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
   const auto t0 = std::chrono::steady_clock::now();
   try {
     auto calibrate = [&](const PlantingOptions& po) {
-      const PlantedPair pair = plantEffect(s.photo, s.truth, s.kernel, po);
+      PlantedPair pair = plantEffect(s.photo, s.truth, s.kernel, po);
+      if (args.jpeg_quality > 0) {
+        pair.sharp = io::jpegRoundTrip(pair.sharp, args.jpeg_quality);
+        pair.blurred = io::jpegRoundTrip(pair.blurred, args.jpeg_quality);
+      }
       PairCalibrationOptions options = s.calibration;
       options.fit.nominal_ratio = pair.exif_ratio;
       options.effects.enabled = effects_on;
@@ -325,7 +361,7 @@ std::string confusionMatrix(const std::vector<std::string>& labels, const std::v
 int runEffects(const EffectsArgs& args) {
   const io::OutputPolicy policy{"bench effects", {}, args.force};
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
-  const Sources src = loadSources();
+  const Sources src = args.photos.empty() ? loadSources() : loadPhotos(args.photos, loadSources());
   std::vector<std::string> effects = args.effects;
   if (effects.empty() && args.two_effects) effects = kEffectPairs;
   if (effects.empty()) {
@@ -405,7 +441,10 @@ int runEffects(const EffectsArgs& args) {
   table << confusionMatrix(effects, results);
   std::printf("%s", table.str().c_str());
   if (!args.json.empty())
-    io::writeJsonOutput(args.json, {{"cases", json}, {"form", args.form}, {"ratio", args.ratio}}, policy.command);
+    io::writeJsonOutput(args.json,
+                        {{"cases", json}, {"form", args.form}, {"ratio", args.ratio}, {"jpeg_quality", args.jpeg_quality},
+                         {"handheld", args.handheld}},
+                        policy.command);
   return kExitOk;
 }
 
@@ -443,6 +482,14 @@ const BenchRegistration registration(
                          "Real regime: r drawn in [0.9, 1.1] x this, the sharp shot underexposed by r (default: r in "
                          "[0.8, 1.4])")
           ->check(CLI::Range(1.0, 16.0));
+      command.add_option("--jpeg", args->jpeg_quality, "Both shots through a 4:2:0 JPEG of this quality (0: off)")
+          ->check(CLI::Range(0, 100));
+      command.add_option("--photo", args->photos,
+                         "Scenes instead of the bundled Levin mosaics and window photo (longest side 512 px; the first "
+                         "also serves as the colour scene)")
+          ->check(CLI::ExistingFile);
+      command.add_flag("--handheld", args->handheld,
+                       "Handheld misregistration: B shifted 2-4 px and turned by up to 0.3 degrees; registration on");
       return [args] { return runEffects(*args); };
     });
 
