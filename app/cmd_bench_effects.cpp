@@ -290,10 +290,14 @@ double quantile(std::vector<double> v, double q) {
 
 std::string range(const std::string& effect) {
   if (isClean(effect)) return "-";
-  const double t = plantingThreshold(effect);
-  char buffer[64];
-  std::snprintf(buffer, sizeof buffer, "%.3g–%.3g", t, 2 * t);
-  return buffer;
+  std::string out;
+  for (const auto& name : plantedNames(effect)) {
+    const double t = plantingThreshold(name);
+    char buffer[64];
+    std::snprintf(buffer, sizeof buffer, "%.3g–%.3g", t, 2 * t);
+    out += (out.empty() ? "" : " + ") + std::string(buffer);
+  }
+  return out;
 }
 
 int runSweep(const Sources& src, const EffectsArgs& args, const std::vector<std::string>& effects) {
