@@ -6,6 +6,9 @@
 // its clean twin (same photo, curve, kernel, r, noise seed, no effect): "phi ok" = the reported φ is within the
 // clean twin's accuracy (RMSE ≤ twin + 0.005, i.e. 1.3/255; for a planted plateau both over [0, plateau], the twin
 // fitted with the same measurable range).
+// --form held-out plants the effects in forms the detectors do not assume (effect_planting.hpp), --two-effects
+// plants pairs of effects, --ratio R puts the pairs in the real regime (r ≈ R, the sharp shot underexposed by r);
+// the confusion matrix (planted × named) follows the table.
 // --sweep: the φ bias each effect causes when it is ignored (effects off), per strength — the basis of the
 // stated thresholds.
 #include <algorithm>
@@ -29,6 +32,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/image_io.hpp"
+#include "crfcal/io/jpeg_roundtrip.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/response_io.hpp"
 #include "crfcal/pair_calibration.hpp"
@@ -55,7 +59,31 @@ struct EffectsArgs {
   bool verbose = false;
   int threads = 2;  // cases in parallel (each case also uses OpenCV's own parallel loops; TBB nests them)
   bool force = false;  // --json/-o over files crfcal did not write (never deletes them)
+  std::string form = "detector";  // PlantingOptions::form ("held-out" on the command line)
+  bool two_effects = false;       // the default case list: pairs of effects
+  double ratio = 0;               // > 0: r drawn in [0.9, 1.1]·ratio, the sharp shot's exposure divided by r
+  int jpeg_quality = 0;           // > 0: both shots through a 4:2:0 JPEG of this quality
+  bool handheld = false;          // B shifted 2–4 px and turned by up to 0.3°, registration on
+  std::vector<std::string> photos;  // other scenes instead of the bundled ones (longest side scaled to 512 px)
 };
+
+// Pairs of effects planted together (--two-effects): each pairs effects whose detectors compete for the same misfit.
+const std::vector<std::string> kEffectPairs{
+    "vignetting+black_level_offset", "clipping+vignetting", "channel_mixing+black_level_offset",
+    "spatially_varying_blur+clipping", "exposure_ratio_mismatch+vignetting"};
+
+// "a+b" → {"a", "b"}; "a" → {"a"}; clean labels → {}.
+std::vector<std::string> plantedNames(const std::string& label) {
+  if (label == "none" || label == "none (kernel estimated)") return {};
+  const auto plus = label.find('+');
+  if (plus == std::string::npos) return {label};
+  return {label.substr(0, plus), label.substr(plus + 1)};
+}
+
+bool isPlanted(const std::string& label, const std::string& name) {
+  const auto names = plantedNames(label);
+  return std::find(names.begin(), names.end(), name) != names.end();
+}
 
 struct CaseResult {
   std::string effect;
@@ -76,6 +104,25 @@ struct Sources {
   cv::Mat colour;
   std::vector<fs::path> curves;
 };
+
+// Other scenes: each photo (longest side 512 px) serves as the grey scene and, in colour, as the colour scene.
+Sources loadPhotos(const std::vector<std::string>& photos, Sources s) {
+  s.mosaic.clear();
+  s.colour.release();
+  std::vector<cv::Mat> colours;
+  for (const auto& path : photos) {
+    cv::Mat m = io::readColorImage(path);
+    const double scale = 512.0 / std::max(m.cols, m.rows);
+    if (scale < 1) cv::resize(m, m, cv::Size(), scale, scale, cv::INTER_AREA);
+    colours.push_back(m);
+    cv::Mat grey;
+    cv::cvtColor(m, grey, cv::COLOR_BGR2GRAY);
+    s.mosaic.push_back(grey);
+  }
+  while (s.mosaic.size() < 4) s.mosaic.push_back(s.mosaic[s.mosaic.size() % photos.size()]);
+  s.colour = colours.front();
+  return s;
+}
 
 Sources loadSources() {
   const fs::path samples = io::samplesDirectory();
@@ -110,14 +157,16 @@ struct Setup {
 };
 
 // The case of (effect, seed): photo, curve, kernel, r, noise seed drawn from the seed; strength factor × threshold.
-Setup makeSetup(const Sources& src, const std::string& effect, int seed, double factor) {
+Setup makeSetup(const Sources& src, const std::string& effect, int seed, double factor, const std::string& form,
+                double ratio, bool handheld) {
   std::mt19937_64 rng(static_cast<std::uint64_t>(seed) * 7919 + std::hash<std::string>{}(effect));
   std::uniform_real_distribution<double> u(0, 1);
   Setup s;
-  const bool colour = effect == "channel_mixing";
+  const std::vector<std::string> planted = plantedNames(effect);
+  const bool colour = isPlanted(effect, "channel_mixing");
   // Blur effects need the kernel estimated (a given kernel is not tested for spatial variation); "none (kernel
   // estimated)" measures the false alarms of that path.
-  const bool large = effect == "spatially_varying_blur" || effect == kNoneEstimated;
+  const bool large = isPlanted(effect, "spatially_varying_blur") || effect == kNoneEstimated;
   const std::size_t pick = static_cast<std::size_t>(u(rng) * 4) % 4;
   s.photo = colour ? src.colour : src.mosaic[pick];
   const fs::path curve = src.curves[static_cast<std::size_t>(u(rng) * src.curves.size()) % src.curves.size()];
@@ -125,13 +174,29 @@ Setup makeSetup(const Sources& src, const std::string& effect, int seed, double 
   s.truth = TableModel{io::readCurveTable(curve)};
   s.kernel = io::kernelFromSpec("levin:" + std::to_string(kernel_index));
   const bool clean = effect == "none" || effect == kNoneEstimated;
-  s.planting.effect = clean ? "none" : effect;
-  s.planting.strength = clean ? 0.0 : plantingThreshold(effect) * (factor > 0 ? factor : 1 + u(rng));
+  s.planting.effect = clean ? "none" : planted.front();
+  s.planting.strength = clean ? 0.0 : plantingThreshold(planted.front()) * (factor > 0 ? factor : 1 + u(rng));
   if (factor > 0) u(rng);
-  s.planting.ratio = 0.8 + 0.6 * u(rng);
+  const double ratio_draw = u(rng);
+  s.planting.ratio = ratio > 0 ? ratio * (0.9 + 0.2 * ratio_draw) : 0.8 + 0.6 * ratio_draw;
+  // The real regime: the short sharp shot is underexposed by r, so that B keeps the usual brightness.
+  if (ratio > 0) s.planting.exposure /= s.planting.ratio;
+  if (planted.size() == 2) {
+    s.planting.second_effect = planted.back();
+    s.planting.second_strength = plantingThreshold(planted.back()) * (1 + u(rng));
+  }
+  s.planting.form = form;
   s.planting.seed = static_cast<std::uint64_t>(seed);
+  if (handheld) {  // its own stream: the cases without it stay what they were
+    std::mt19937_64 motion(static_cast<std::uint64_t>(seed) * 104729 + 3);
+    std::uniform_real_distribution<double> m(0, 1);
+    const double angle = 2 * CV_PI * m(motion), shift = 2 + 2 * m(motion);
+    s.planting.shift_x = shift * std::cos(angle);
+    s.planting.shift_y = shift * std::sin(angle);
+    s.planting.rotation_deg = 0.6 * m(motion) - 0.3;
+  }
   PairCalibrationOptions& o = s.calibration;
-  o.register_pair = false;
+  o.register_pair = handheld;
   o.rgb = colour;
   if (large) {
     o.kernel.kernel_size = 31;
@@ -145,7 +210,8 @@ Setup makeSetup(const Sources& src, const std::string& effect, int seed, double 
 
 CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::string& effect, int seed, double factor,
                    bool effects_on) {
-  Setup s = makeSetup(src, effect, seed, factor);
+  Setup s = makeSetup(src, effect, seed, factor, args.form == "held-out" ? "held_out" : "detector", args.ratio,
+                      args.handheld);
   CaseResult r;
   r.effect = effect;
   r.seed = seed;
@@ -154,7 +220,11 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
   const auto t0 = std::chrono::steady_clock::now();
   try {
     auto calibrate = [&](const PlantingOptions& po) {
-      const PlantedPair pair = plantEffect(s.photo, s.truth, s.kernel, po);
+      PlantedPair pair = plantEffect(s.photo, s.truth, s.kernel, po);
+      if (args.jpeg_quality > 0) {
+        pair.sharp = io::jpegRoundTrip(pair.sharp, args.jpeg_quality);
+        pair.blurred = io::jpegRoundTrip(pair.blurred, args.jpeg_quality);
+      }
       PairCalibrationOptions options = s.calibration;
       options.fit.nominal_ratio = pair.exif_ratio;
       options.effects.enabled = effects_on;
@@ -174,9 +244,12 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
     };
     const PairCalibrationResult result = calibrate(s.planting);
     r.detected = result.effects.detected();
-    r.hit = isClean(effect) ? r.detected.empty()
-                            : std::find(r.detected.begin(), r.detected.end(), effect) != r.detected.end();
-    r.exact = isClean(effect) ? r.detected.empty() : (r.hit && r.detected.size() == 1);
+    const std::vector<std::string> planted_names = plantedNames(effect);
+    r.hit = std::all_of(planted_names.begin(), planted_names.end(), [&](const std::string& name) {
+      return std::find(r.detected.begin(), r.detected.end(), name) != r.detected.end();
+    });
+    if (isClean(effect)) r.hit = r.detected.empty();
+    r.exact = r.hit && r.detected.size() == planted_names.size();
     r.rmse = rmse(result.fits.at("G").inverse_crf);
     r.rmse_base = rmse((result.base_fits.empty() ? result.fits : result.base_fits).at("G").inverse_crf);
     if (isClean(effect)) {
@@ -184,6 +257,7 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
     } else {
       PlantingOptions clean = s.planting;
       clean.effect = "none";
+      clean.second_effect = "none";
       // With a plateau, nothing above it is measurable: the twin gets the same measurable range (saturation at
       // the plateau), so that "clean-case accuracy" means the accuracy reachable from the same information.
       if (planted.plateau_intensity < 1)
@@ -216,10 +290,14 @@ double quantile(std::vector<double> v, double q) {
 
 std::string range(const std::string& effect) {
   if (isClean(effect)) return "-";
-  const double t = plantingThreshold(effect);
-  char buffer[64];
-  std::snprintf(buffer, sizeof buffer, "%.3g–%.3g", t, 2 * t);
-  return buffer;
+  std::string out;
+  for (const auto& name : plantedNames(effect)) {
+    const double t = plantingThreshold(name);
+    char buffer[64];
+    std::snprintf(buffer, sizeof buffer, "%.3g–%.3g", t, 2 * t);
+    out += (out.empty() ? "" : " + ") + std::string(buffer);
+  }
+  return out;
 }
 
 int runSweep(const Sources& src, const EffectsArgs& args, const std::vector<std::string>& effects) {
@@ -255,11 +333,41 @@ int runSweep(const Sources& src, const EffectsArgs& args, const std::vector<std:
   return kExitOk;
 }
 
+// Planted × named: per planted label, in how many of its pairs each effect was named ("nothing": no effect named).
+std::string confusionMatrix(const std::vector<std::string>& labels, const std::vector<CaseResult>& results) {
+  const std::vector<std::string>& names = effectNames();
+  std::ostringstream out;
+  out << "\nConfusion matrix (rows: planted; columns: named; cells: pairs naming it / pairs):\n\n| planted |";
+  for (const auto& n : names) out << ' ' << n << " |";
+  out << " nothing |\n|---|";
+  for (std::size_t i = 0; i <= names.size(); ++i) out << "---|";
+  out << '\n';
+  for (const auto& label : labels) {
+    int n = 0, nothing = 0;
+    std::vector<int> named(names.size(), 0);
+    for (const auto& r : results) {
+      if (r.effect != label || !r.error.empty()) continue;
+      ++n;
+      nothing += r.detected.empty();
+      for (std::size_t i = 0; i < names.size(); ++i)
+        named[i] += std::find(r.detected.begin(), r.detected.end(), names[i]) != r.detected.end();
+    }
+    out << "| " << label << " |";
+    for (std::size_t i = 0; i < names.size(); ++i)
+      out << ' ' << (isPlanted(label, names[i]) ? "**" : "") << named[i] << '/' << n
+          << (isPlanted(label, names[i]) ? "**" : "") << " |";
+    out << ' ' << nothing << '/' << n << " |\n";
+  }
+  out << "\n(bold: the planted effects.)\n";
+  return out.str();
+}
+
 int runEffects(const EffectsArgs& args) {
   const io::OutputPolicy policy{"bench effects", {}, args.force};
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
-  const Sources src = loadSources();
+  const Sources src = args.photos.empty() ? loadSources() : loadPhotos(args.photos, loadSources());
   std::vector<std::string> effects = args.effects;
+  if (effects.empty() && args.two_effects) effects = kEffectPairs;
   if (effects.empty()) {
     effects.push_back("none");
     effects.push_back(kNoneEstimated);
@@ -267,7 +375,7 @@ int runEffects(const EffectsArgs& args) {
   }
   for (auto& e : effects) {
     if (e == "none-estimated") e = kNoneEstimated;
-    if (!isClean(e)) plantingThreshold(e);  // unknown names: one-line error
+    for (const auto& name : plantedNames(e)) plantingThreshold(name);  // unknown names: one-line error
   }
   if (args.sweep) return runSweep(src, args, effects);
   // Every (effect, seed) case is independent: run them `threads` at a time; the table is built from the results in
@@ -309,7 +417,7 @@ int runEffects(const EffectsArgs& args) {
       exact += r.exact;
       ok += r.phi_ok;
       for (const auto& d : r.detected)
-        if (d != effect) ++others;
+        if (!isPlanted(effect, d)) ++others;
       if (r.error.empty()) {
         rm.push_back(r.rmse);
         rb.push_back(r.rmse_base);
@@ -334,8 +442,13 @@ int runEffects(const EffectsArgs& args) {
   }
   table << "\n('none' rows: 'detected' = no effect reported; 1 − that is the false-alarm rate. 'none (kernel "
            "estimated)': clean pairs through the kernel-estimating path, where spatially_varying_blur is tested.)\n";
+  table << confusionMatrix(effects, results);
   std::printf("%s", table.str().c_str());
-  if (!args.json.empty()) io::writeJsonOutput(args.json, {{"cases", json}}, policy.command);
+  if (!args.json.empty())
+    io::writeJsonOutput(args.json,
+                        {{"cases", json}, {"form", args.form}, {"ratio", args.ratio}, {"jpeg_quality", args.jpeg_quality},
+                         {"handheld", args.handheld}},
+                        policy.command);
   return kExitOk;
 }
 
@@ -361,6 +474,26 @@ const BenchRegistration registration(
       command.add_flag("--force", args->force, kForceHelp);
       command.add_flag("-v,--verbose", args->verbose, "Print every case's effect table");
       command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::Range(1, kMaxThreads));
+      command.add_option("--form", args->form,
+                         "detector: each effect in its detector's own model form; held-out: other physical forms "
+                         "(cos^4 vignetting in either shot, per-channel offsets or a flare veil, a camera colour matrix, "
+                         "a highlight knee, rotation or depth-scaled blur)")
+          ->check(CLI::IsMember({"detector", "held-out"}))
+          ->capture_default_str();
+      command.add_flag("--two-effects", args->two_effects,
+                       "Plant pairs of effects (default list; or --effect a+b)");
+      command.add_option("--ratio", args->ratio,
+                         "Real regime: r drawn in [0.9, 1.1] x this, the sharp shot underexposed by r (default: r in "
+                         "[0.8, 1.4])")
+          ->check(CLI::Range(1.0, 16.0));
+      command.add_option("--jpeg", args->jpeg_quality, "Both shots through a 4:2:0 JPEG of this quality (0: off)")
+          ->check(CLI::Range(0, 100));
+      command.add_option("--photo", args->photos,
+                         "Scenes instead of the bundled Levin mosaics and window photo (longest side 512 px; the first "
+                         "also serves as the colour scene)")
+          ->check(CLI::ExistingFile);
+      command.add_flag("--handheld", args->handheld,
+                       "Handheld misregistration: B shifted 2-4 px and turned by up to 0.3 degrees; registration on");
       return [args] { return runEffects(*args); };
     });
 

@@ -19,6 +19,23 @@
 //   spatially_varying_blur   B blurred with K at the left edge blending linearly into K' at the right edge:
 //                            K(x) = (1 − t) K + t K', t = s · x / width, K' = K rotated by 90°
 //   black_level_offset       an irradiance offset s added to one shot (B: flare; or I; chosen by the seed)
+//
+// form = "held_out" plants the same effects in physical forms the detectors do NOT assume (issue 18: a bench that
+// plants exactly the detector's model proves little), at the same strength scale:
+//   exposure_ratio_mismatch  as above (there is no other form of a wrong EXIF ratio)
+//   channel_mixing           a real camera's colour matrix (Canon EOS 5D Mark II, Adobe DNG ColorMatrix at D65,
+//                            times sRGB→XYZ, rows normalised to 1), blended with the identity so that the mean
+//                            off-diagonal mass per row is s
+//   signal_dependent_noise   as above (issue 18 leaves it out of the count)
+//   clipping                 a highlight knee instead of a plateau: above the level k that a fraction s of the
+//                            informative pixels exceeds, E → k + w (1 − exp(−(E − k)/w)), w = (1 − k)/2
+//   vignetting               the cos⁴ law, 1/(1 + (ρ t)²)² with t such that the corners lose s, in either shot
+//   spatially_varying_blur   a rotation about the image centre during the exposure (arc at the corners = s × the
+//                            kernel's extent), or a depth-dependent scale (K scaled by 1 − s at the top to 1 + s
+//                            at the bottom)
+//   black_level_offset       per-channel offsets s·u_c (u_c in [0.5, 1.5]) in either shot, or a low-frequency
+//                            flare veil in B (a broad Gaussian bump of mean ≈ s)
+// second_effect plants a second effect (any form) in the same pair.
 // The stated detectability thresholds (minimum strengths that calibration must detect, with the reason for each
 // value) are plantingThreshold() / thresholdReason(); tests and `crfcal bench effects` draw strengths uniformly
 // in [threshold, 2·threshold].
@@ -35,6 +52,9 @@ namespace crfcal {
 struct PlantingOptions {
   std::string effect = "none";   // "none" or one of effectNames()
   double strength = 0;           // meaning per effect, see above
+  std::string second_effect = "none";  // a second effect in the same pair ("none": one effect)
+  double second_strength = 0;
+  std::string form = "detector";  // "detector" (each detector's own model form) or "held_out" (see above)
   double ratio = 1.0;            // true exposure ratio r
   double exposure = 0.45;        // mean irradiance of the sharp frame (before r)
   double sharp_sigma = 0.01;     // I's intensity-domain noise std (2.6 of 255: a high-ISO short exposure)
@@ -52,7 +72,7 @@ struct PlantedPair {
   double exif_ratio = 1;         // what the camera's EXIF would claim
   std::string effect;
   double strength = 0;
-  std::string detail;            // e.g. which shot carries the offset
+  std::string detail;            // e.g. which shot carries the offset, which held-out form
   double plateau_intensity = 1;  // clipping: B's plateau level (φ above it is not measurable from the pair)
 };
 
