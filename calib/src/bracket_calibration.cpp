@@ -1,6 +1,8 @@
 #include "crfcal/bracket_calibration.hpp"
 
 #include <algorithm>
+#include <cstdio>
+#include <limits>
 #include <cmath>
 #include <numeric>
 #include <random>
@@ -34,6 +36,8 @@ void BracketCalibrationOptions::check() const {
   sampling.check();
   fit.check();
   if (exposure_rounds < 0) throw InvalidInput("bracket: exposure_rounds must be ≥ 0", ErrorSubject::options);
+  if (!(min_scene_correlation >= -1 && min_scene_correlation <= 1))
+    throw InvalidInput("bracket: min_scene_correlation must be in [-1, 1]", ErrorSubject::options);
   if (!(max_exposure_deviation >= 0))
     throw InvalidInput("bracket: max_exposure_deviation must be ≥ 0", ErrorSubject::options);
   if (channels.empty()) throw InvalidInput("bracket: no channels", ErrorSubject::options);
@@ -116,6 +120,64 @@ cv::Mat greyOf(const cv::Mat& unit_image) {
   cv::Mat grey;
   cv::cvtColor(unit_image, grey, cv::COLOR_BGR2GRAY);
   return grey;
+}
+
+// Spearman rank correlation of two aligned grey frames over the pixels where both are well exposed and `valid`
+// (a regular subsample): the frames of one scene are related by a monotone map (φ and the exposure ratio), so
+// their ranks agree (≈ 1 up to noise); another scene gives ≈ 0. NaN with fewer than 200 such pixels.
+double rankCorrelation(const cv::Mat& a, const cv::Mat& b, const cv::Mat& valid, double low, double high) {
+  std::vector<float> va, vb;
+  const int step = std::max(1, int(std::sqrt(double(a.total()) / 40000.0)));
+  for (int y = 0; y < a.rows; y += step)
+    for (int x = 0; x < a.cols; x += step) {
+      const float p = a.at<float>(y, x), q = b.at<float>(y, x);
+      if (!valid.at<uchar>(y, x) || p <= low || p >= high || q <= low || q >= high) continue;
+      va.push_back(p);
+      vb.push_back(q);
+    }
+  if (va.size() < 200) return std::numeric_limits<double>::quiet_NaN();
+  auto ranks = [](const std::vector<float>& v) {
+    std::vector<std::size_t> order(v.size());
+    std::iota(order.begin(), order.end(), 0);
+    std::sort(order.begin(), order.end(), [&](auto i, auto j) { return v[i] < v[j]; });
+    std::vector<double> r(v.size());
+    for (std::size_t k = 0; k < order.size(); ++k) r[order[k]] = double(k);
+    return r;
+  };
+  const std::vector<double> ra = ranks(va), rb = ranks(vb);
+  const double mean = (double(ra.size()) - 1) / 2;
+  double sab = 0, saa = 0, sbb = 0;
+  for (std::size_t k = 0; k < ra.size(); ++k) {
+    sab += (ra[k] - mean) * (rb[k] - mean);
+    saa += (ra[k] - mean) * (ra[k] - mean);
+    sbb += (rb[k] - mean) * (rb[k] - mean);
+  }
+  return sab / std::sqrt(saa * sbb);
+}
+
+// Each frame against its neighbour in brightness: the same scene, or refused naming the frame.
+void requireSameScene(const std::vector<cv::Mat>& greys, const cv::Mat& valid, const std::vector<BracketFrame>& frames,
+                      int reference, const BracketCalibrationOptions& options, std::vector<BracketFrameResult>& results) {
+  std::vector<std::size_t> order(greys.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::vector<double> mean(greys.size());
+  for (std::size_t j = 0; j < greys.size(); ++j) mean[j] = cv::mean(greys[j], valid)[0];
+  std::sort(order.begin(), order.end(), [&](auto a, auto b) { return mean[a] < mean[b]; });
+  for (std::size_t k = 1; k < order.size(); ++k) {
+    const std::size_t a = order[k - 1], b = order[k];
+    const double rho = rankCorrelation(greys[a], greys[b], valid, options.sampling.low, options.sampling.high);
+    results[b].scene_correlation = rho;
+    if (k == 1) results[a].scene_correlation = rho;
+    if (!(rho < options.min_scene_correlation)) continue;  // NaN (too few common pixels): no verdict
+    // Blame the frame that is not the reference (or the brighter one).
+    const std::size_t blamed = int(b) == reference ? a : b;
+    const std::size_t other = blamed == a ? b : a;
+    char text[160];
+    std::snprintf(text, sizeof text, "not the same scene as %s (rank correlation %.2f of the pixels both expose well, "
+                                     "after registration; the same scene gives > %.2f)",
+                  frames[other].name.c_str(), rho, options.min_scene_correlation);
+    throw InvalidInput(text, ErrorSubject::pair, frames[blamed].name);
+  }
 }
 
 // Start exposures relative to the reference frame without EXIF: consecutive frames (ordered by mean brightness)
@@ -365,6 +427,7 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
   const AlignedBracket aligned = alignFrames(frames, reference, options, result.frames, progress);
   std::vector<cv::Mat> greys;
   for (const cv::Mat& image : aligned.images) greys.push_back(greyOf(image));
+  requireSameScene(greys, aligned.valid, frames, reference, options, result.frames);
   std::vector<double> start(frames.size());
   if (known) {
     for (std::size_t j = 0; j < frames.size(); ++j) start[j] = frames[j].exposure / frames[static_cast<size_t>(reference)].exposure;

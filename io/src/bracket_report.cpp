@@ -1,5 +1,6 @@
 #include "crfcal/io/bracket_report.hpp"
 
+#include <cmath>
 #include <cstdio>
 
 #include <opencv2/imgproc.hpp>
@@ -29,6 +30,7 @@ nlohmann::json frameJson(const BracketFrameResult& f, const ExifExposure* exif) 
                        {"ecc_correlation", f.registration.ecc_correlation},
                        {"shift", {f.registration.shift().x, f.registration.shift().y}},
                        {"rotation_deg", f.registration.rotationDegrees()}};
+  j["scene_correlation"] = std::isfinite(f.scene_correlation) ? nlohmann::json(f.scene_correlation) : nlohmann::json(nullptr);
   return j;
 }
 
