@@ -19,6 +19,7 @@
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/opencv_calibrators.hpp"
+#include "crfcal/io/datasets.hpp"
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/jpeg_roundtrip.hpp"
 #include "crfcal/io/kernel_io.hpp"
@@ -38,6 +39,8 @@ struct BracketBenchArgs {
   int quality = 90;
   double shot_noise = 2e-4;
   bool register_frames = true;    // crfcal registers (end to end, as a user runs it); OpenCV's calibrators cannot
+  std::string data;               // shared data directory (real brackets); default $CRFCAL_SHARED_DATA or ../shared/data
+  bool real = true;               // also the real brackets of the shared data
   std::string json;
   bool force = false;
   bool quiet = false;
@@ -90,9 +93,76 @@ double shapeError(const std::vector<double>& truth, const std::vector<double>& e
   return compareCurves(truth, estimate, range, range).rmse_covered_aligned;
 }
 
+// The real tripod brackets of ../shared/data/brackets (no truth): how far OpenCV's calibrators are from crfcal's
+// curve in shape over [0.06, 0.75] ∩ crfcal's covered range (where Debevec's hat weight is above half), per channel.
+nlohmann::json runRealBrackets(const BracketBenchArgs& args, Progress& progress) {
+  const fs::path root = io::defaultSharedData(args.data) / "brackets";
+  nlohmann::json out = nlohmann::json::array();
+  if (!fs::is_directory(root)) {
+    std::printf("\nreal brackets: %s not found (give --data or set CRFCAL_SHARED_DATA): skipped\n", root.string().c_str());
+    return out;
+  }
+  std::vector<fs::path> sets;
+  for (const auto& e : fs::directory_iterator(root))
+    if (e.is_directory() && fs::exists(e.path() / "exif.csv")) sets.push_back(e.path());
+  std::sort(sets.begin(), sets.end());
+  std::printf("\nReal tripod brackets (%s, exposure times from exif.csv, no registration): shape RMSE of OpenCV's "
+              "curve against crfcal's over [0.06, 0.75], after the best common factor\n", root.string().c_str());
+  std::printf("| bracket | frames | size | crfcal K (R/G/B) | crfcal fitted/EXIF exposures, worst | Debevec R / G / B | "
+              "Robertson R / G / B | crfcal s | Debevec s | Robertson s |\n|---|---|---|---|---|---|---|---|---|---|\n");
+  progress.stage("real brackets");
+  for (const fs::path& set : sets) {
+    std::vector<io::ExifCsvRow> rows = io::readExifCsv(set / "exif.csv");
+    std::sort(rows.begin(), rows.end(), [](const auto& a, const auto& b) { return a.exposure_time < b.exposure_time; });
+    std::vector<cv::Mat> frames;
+    std::vector<double> times;
+    std::vector<BracketFrame> bracket;
+    for (const auto& row : rows) {
+      frames.push_back(io::readColorImage(set / row.file));
+      times.push_back(row.exposure_time);
+      bracket.push_back({row.file, frames.back(), row.exposure_time});
+    }
+    BracketCalibrationOptions options;
+    options.register_frames = false;
+    auto start = std::chrono::steady_clock::now();
+    const BracketCalibrationResult ours = calibrateBracket(bracket, options);
+    const double ours_seconds = secondsSince(start);
+    double worst_exposure = 1;
+    for (const auto& f : ours.frames) {
+      const double r = f.fitted_exposure / f.start_exposure;
+      if (std::abs(std::log(r)) > std::abs(std::log(worst_exposure))) worst_exposure = r;
+    }
+    nlohmann::json row{{"bracket", set.filename().string()}, {"frames", frames.size()}, {"crfcal_seconds", ours_seconds}};
+    std::string terms, cells[2];
+    double seconds[2] = {0, 0};
+    for (const auto calibrator : {OpenCvCalibrator::Debevec, OpenCvCalibrator::Robertson}) {
+      const int m = calibrator == OpenCvCalibrator::Debevec ? 0 : 1;
+      start = std::chrono::steady_clock::now();
+      const auto curves = opencvInverseResponse(frames, times, calibrator);
+      seconds[m] = secondsSince(start);
+      for (const auto& c : ours.channels) {
+        const IntensityRange inner{std::max(c.fit.covered_range.first, 0.06), std::min(c.fit.covered_range.second, 0.75)};
+        const double e = shapeError(c.fit.inverse, curves[static_cast<std::size_t>(c.channel)], inner);
+        char text[32];
+        std::snprintf(text, sizeof text, "%s%.3f", c.channel == 0 ? "" : " / ", e);
+        cells[m] += text;
+        row[m == 0 ? "debevec" : "robertson"][channelName(c.channel)] = std::isfinite(e) ? nlohmann::json(e) : nlohmann::json(nullptr);
+      }
+      row[m == 0 ? "debevec_seconds" : "robertson_seconds"] = seconds[m];
+    }
+    for (const auto& c : ours.channels) terms += (terms.empty() ? "" : "/") + std::to_string(c.fit.terms);
+    std::printf("| %s | %zu | %dx%d | %s | %.3f | %s | %s | %.2f | %.2f | %.2f |\n", set.filename().string().c_str(),
+                frames.size(), frames[0].cols, frames[0].rows, terms.c_str(), worst_exposure, cells[0].c_str(),
+                cells[1].c_str(), ours_seconds, seconds[0], seconds[1]);
+    out.push_back(row);
+  }
+  progress.done();
+  return out;
+}
+
 int runBracketBench(const BracketBenchArgs& args) {
   if (args.frames < 2 || args.frames > 8) throw InvalidInput("--frames must be in 2..8");
-  const io::OutputPolicy policy{"bench bracket", {io::samplesDirectory()}, args.force};
+  const io::OutputPolicy policy{"bench bracket", {io::samplesDirectory(), io::defaultSharedData(args.data)}, args.force};
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);
   Progress progress(args.quiet);
   const fs::path curves_dir = io::samplesDirectory() / "camera_curves";
@@ -198,7 +268,9 @@ int runBracketBench(const BracketBenchArgs& args) {
   std::printf("target: <= 0.4 s per call for %d shots of %dx%d (%s): median %.3f s: %s\n", args.frames, args.width,
               args.height, args.register_frames ? "with registration" : "no registration", seconds,
               seconds <= 0.4 ? "met" : "not met");
-  if (!args.json.empty()) io::writeJsonOutput(args.json, {{"summary", summary}, {"cases", cases}}, policy.command);
+  nlohmann::json real = args.real ? runRealBrackets(args, progress) : nlohmann::json::array();
+  if (!args.json.empty())
+    io::writeJsonOutput(args.json, {{"summary", summary}, {"cases", cases}, {"real", real}}, policy.command);
   return kExitOk;
 }
 
@@ -216,6 +288,8 @@ const BenchRegistration registration(
       command.add_option("--shot-noise", args->shot_noise, "Poisson noise variance per unit irradiance")
           ->check(CLI::NonNegativeNumber);
       command.add_flag("!--no-register", args->register_frames, "crfcal without registration (as OpenCV's calibrators)");
+      command.add_option("--data", args->data, "Shared data directory (default $CRFCAL_SHARED_DATA or ../shared/data)");
+      command.add_flag("!--no-real", args->real, "Skip the real brackets of the shared data");
       command.add_option("--json", args->json, "Write all numbers to this JSON file (atomic)");
       command.add_flag("--force", args->force, kForceHelp);
       command.add_flag("-q,--quiet", args->quiet, "No progress output");

@@ -89,13 +89,24 @@ int runBracket(BracketArgs args) {
     frames.push_back(std::move(frame));
     progress.update(double(i + 1) / double(args.images.size()), args.images[i]);
   }
+  // ISO·t/N² from EXIF; when no frame states its ISO (Exiv2 cannot read some makers' notes, e.g. the Canon S3 IS)
+  // but all state the time, t/N² with one ISO assumed for the whole bracket, and the warning says so.
   std::string exposure_note;
+  bool all_times = true, no_iso = true;
+  for (const auto& e : exif) {
+    all_times = all_times && e.exposure_time && *e.exposure_time > 0;
+    no_iso = no_iso && !(e.iso && *e.iso > 0);
+  }
+  const bool times_only = !all_exif && all_times && no_iso;
   for (std::size_t i = 0; i < frames.size(); ++i) {
     if (!given.empty()) frames[i].exposure = given[i];
-    else if (!args.no_exif && all_exif)
-      frames[i].exposure = *exif[i].iso * *exif[i].exposure_time / std::pow(exif[i].f_number.value_or(1.0), 2);
+    else if (!args.no_exif && (all_exif || times_only))
+      frames[i].exposure = (times_only ? 1.0 : *exif[i].iso) * *exif[i].exposure_time /
+                           std::pow(exif[i].f_number.value_or(1.0), 2);
   }
-  if (given.empty() && !args.no_exif && !all_exif)
+  if (given.empty() && !args.no_exif && times_only)
+    exposure_note = "no frame's EXIF states its ISO: exposures t/N² from EXIF, the same ISO assumed for all frames";
+  else if (given.empty() && !args.no_exif && !all_exif)
     exposure_note = "EXIF exposure (ISO and time) missing in at least one frame: exposures estimated from the images";
   progress.done();
   const double read_seconds = secondsSince(start);
@@ -114,7 +125,8 @@ int runBracket(BracketArgs args) {
   if (!exposure_note.empty()) result.warnings.insert(result.warnings.begin(), exposure_note);
 
   io::CalibrationReport report = io::bracketReport(result, exif);
-  report.extra["bracket"]["exposures_given"] = given.empty() ? (args.no_exif || !all_exif ? "images" : "exif") : "--exposures";
+  report.extra["bracket"]["exposures_given"] =
+      !given.empty() ? "--exposures" : args.no_exif || !(all_exif || times_only) ? "images" : times_only ? "exif time and f-number (no ISO)" : "exif";
   report.timings = {{"read", read_seconds}, {"calibrate", secondsSince(calibrate_start)}, {"total", secondsSince(start)}};
   std::size_t reference = 0;
   for (std::size_t j = 0; j < result.frames.size(); ++j)

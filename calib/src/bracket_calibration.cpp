@@ -35,6 +35,8 @@ void BracketCalibrationOptions::check() const {
   registration.check();
   sampling.check();
   fit.check();
+  if (max_dimension < 0 || (max_dimension > 0 && max_dimension < 64))
+    throw InvalidInput("bracket: max_dimension must be 0 or ≥ 64", ErrorSubject::options);
   if (exposure_rounds < 0) throw InvalidInput("bracket: exposure_rounds must be ≥ 0", ErrorSubject::options);
   if (!(min_scene_correlation >= -1 && min_scene_correlation <= 1))
     throw InvalidInput("bracket: min_scene_correlation must be in [-1, 1]", ErrorSubject::options);
@@ -423,8 +425,17 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
           result.warnings.push_back(frames[j].name + " and " + frames[k].name +
                                     " have the same exposure: the pair adds no range, only noise averaging");
 
+  // Working copies no larger than max_dimension (registration and sampling at that size).
+  double scale = 1;
+  std::vector<BracketFrame> working = frames;
+  if (options.max_dimension > 0) {
+    const cv::Size size = frames[static_cast<std::size_t>(reference)].image.size();
+    scale = std::min(1.0, double(options.max_dimension) / std::max(size.width, size.height));
+    if (scale < 1)
+      for (auto& f : working) cv::resize(f.image, f.image, cv::Size(), scale, scale, cv::INTER_AREA);
+  }
   if (progress) progress("register", 0, "");
-  const AlignedBracket aligned = alignFrames(frames, reference, options, result.frames, progress);
+  const AlignedBracket aligned = alignFrames(working, reference, options, result.frames, progress);
   std::vector<cv::Mat> greys;
   for (const cv::Mat& image : aligned.images) greys.push_back(greyOf(image));
   requireSameScene(greys, aligned.valid, frames, reference, options, result.frames);
@@ -442,7 +453,7 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
   if (progress) progress("sample", 0, "");
   const Samples samples = samplePoints(aligned, options.sampling);
   result.points = int(samples.positions.size());
-  result.point_positions = samples.positions;
+  for (const cv::Point& p : samples.positions) result.point_positions.emplace_back(int(p.x / scale), int(p.y / scale));
 
   const bool grey = aligned.images.front().channels() == 1;
   std::vector<int> channels, planes;

@@ -281,8 +281,10 @@ ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observa
   result.terms = terms;
   result.model.coefficients.assign(v.begin(), v.begin() + terms);
   result.inverse = emorSamples(result.model.coefficients);
-  // Tiny negative steps the SLSQP tolerance lets through: make the table exactly non-decreasing.
-  for (size_t j = 1; j < result.inverse.size(); ++j) result.inverse[j] = std::max(result.inverse[j], result.inverse[j - 1]);
+  // Tiny negative steps the SLSQP tolerance (or a monotone grid coarser than the 1024 nodes) lets through: make the
+  // table exactly non-decreasing and ≤ φ(1) = 1.
+  for (size_t j = 1; j < result.inverse.size(); ++j)
+    result.inverse[j] = std::min(std::max(result.inverse[j], result.inverse[j - 1]), 1.0);
   result.inverse.front() = 0;
   result.inverse.back() = 1;
   Eigen::VectorXd phi(n);

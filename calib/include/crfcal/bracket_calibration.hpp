@@ -54,6 +54,10 @@ struct BracketSamplingOptions {
 
 struct BracketCalibrationOptions {
   bool register_frames = true;   // false: the frames are already aligned (tripod); sizes must agree
+  // Frames whose longest side exceeds this are reduced to it first (area averaging, like the local means the samples
+  // are anyway): the curve needs a few hundred flat points, not megapixels; 6 MP frames took 20 s to register and
+  // sample at full size. 0: full size.
+  int max_dimension = 1024;
   RegistrationOptions registration;
   BracketSamplingOptions sampling;
   // The EMoR fit (chart_calibration.hpp). K by 2-fold cross-validation over scene points up to max_terms; the scales
@@ -106,7 +110,7 @@ struct BracketCalibrationResult {
   std::vector<BracketFrameResult> frames;  // input order
   std::string exposure_source;             // "exif" or "images"
   int points = 0;                          // scene points drawn
-  std::vector<cv::Point> point_positions;  // in the reference frame (for the figure)
+  std::vector<cv::Point> point_positions;  // in the reference frame, full-size pixels (for the figure)
   std::vector<std::string> warnings;
   std::string summary() const;
 };
