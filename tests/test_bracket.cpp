@@ -164,12 +164,6 @@ TEST(BracketCli, WritesAReportThatCompareAndExportRead) {
   EXPECT_EQ(report.channels().size(), 3u);
   EXPECT_TRUE(fs::exists(dir / "out" / "curve.png"));
   EXPECT_TRUE(fs::exists(dir / "out" / "points.png"));
-  // The output directory is protected like every other command's: a second run refuses without --force? No: it is
-  // crfcal's own directory (manifest), so it is replaced.
-  {
-    std::ofstream truth(dir / "truth.csv");
-    for (size_t i = 0; i < b.truth.size(); ++i) truth << double(i) / double(b.truth.size() - 1) << "," << b.truth[i] << "\n";
-  }
   const auto compared = test::run(crfcal + " compare -q " + (dir / "out" / "report.json").string() + " " +
                                   (dir / "out" / "report.json").string() + " --tolerance 1e-9");
   EXPECT_EQ(compared.exit_code, 0) << compared.output;
@@ -177,7 +171,7 @@ TEST(BracketCli, WritesAReportThatCompareAndExportRead) {
                                   (dir / "curve.cube").string());
   EXPECT_EQ(exported.exit_code, 0) << exported.output;
   EXPECT_TRUE(fs::exists(dir / "curve.cube"));
-  // A foreign file in the output directory: refused without --force.
+  // The output safety of every writing command: a foreign file in the output directory is refused without --force.
   { std::ofstream(dir / "out" / "mine.txt") << "not crfcal's"; }
   const auto again = test::run(crfcal + " bracket -q" + inputs + " -o " + (dir / "out").string());
   EXPECT_NE(again.exit_code, 0) << again.output;
