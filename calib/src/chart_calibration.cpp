@@ -40,7 +40,10 @@ struct Problem {
   Eigen::VectorXd exponent_dlog;  // log x_{j+1} − log x_j
   Eigen::MatrixXd monotone_a;  // M × K: h_k(x_{j+1}) − h_k(x_j)
   Eigen::VectorXd monotone_b;  // g0(x_{j+1}) − g0(x_j)
+  bool profile_scales = false;  // the scales are bestScales(φ), not variables (ScaledFitOptions::profile_scales)
 };
+
+std::vector<double> bestScales(const Problem& p, const Eigen::VectorXd& phi);
 
 double cost(const Problem& p, const double* v, double* grad) {
   const Eigen::Map<const Eigen::VectorXd> c(v, p.terms);
@@ -48,9 +51,11 @@ double cost(const Problem& p, const double* v, double* grad) {
   double sum = 0;
   Eigen::VectorXd grad_c = Eigen::VectorXd::Zero(p.terms);
   std::vector<double> grad_s(static_cast<size_t>(p.groups), 0.0);
+  // Profiled scales: at the closed-form optimum ∂J/∂s = 0, so ∂J/∂c is the partial derivative at fixed s.
+  const std::vector<double> profiled = p.profile_scales ? bestScales(p, phi) : std::vector<double>();
   for (Eigen::Index i = 0; i < phi.size(); ++i) {
     const int g = p.group[static_cast<size_t>(i)];
-    const double s = v[p.terms + g];
+    const double s = p.profile_scales ? profiled[static_cast<size_t>(g)] : v[p.terms + g];
     double r = p.y[i] - s * phi[i];
     const auto kind = p.kind[static_cast<size_t>(i)];
     if (kind == ScaledObservation::Kind::AtMost) r = std::min(r, 0.0);       // violated when sφ > y
@@ -96,7 +101,8 @@ double cost(const Problem& p, const double* v, double* grad) {
   }
   if (grad) {
     for (int k = 0; k < p.terms; ++k) grad[k] = grad_c[k];
-    for (int g = 0; g < p.groups; ++g) grad[p.terms + g] = grad_s[static_cast<size_t>(g)];
+    if (!p.profile_scales)
+      for (int g = 0; g < p.groups; ++g) grad[p.terms + g] = grad_s[static_cast<size_t>(g)];
   }
   return sum / p.normaliser + rough + bend;
 }
@@ -221,8 +227,9 @@ ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observa
   }
   if (!(p.normaliser > 0)) throw InvalidInput("response fit: all weights are zero");
 
-  std::vector<double> v(static_cast<size_t>(terms + p.groups), 0.0);
-  {
+  p.profile_scales = options.profile_scales;
+  std::vector<double> v(static_cast<size_t>(terms + (p.profile_scales ? 0 : p.groups)), 0.0);
+  if (!p.profile_scales) {
     const std::vector<double> s = bestScales(p, p.mean);
     std::copy(s.begin(), s.end(), v.begin() + terms);
   }
@@ -256,7 +263,8 @@ ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observa
         },
         &p, std::vector<double>(static_cast<size_t>(grid - 1), 1e-12));
     std::vector<double> lower(v.size(), -std::numeric_limits<double>::infinity());
-    for (int g = 0; g < p.groups; ++g) lower[static_cast<size_t>(terms + g)] = 0;
+    if (!p.profile_scales)
+      for (int g = 0; g < p.groups; ++g) lower[static_cast<size_t>(terms + g)] = 0;
     optimizer.set_lower_bounds(lower);
     optimizer.set_ftol_rel(1e-14);
     optimizer.set_xtol_rel(1e-10);
@@ -273,8 +281,10 @@ ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observa
   result.terms = terms;
   result.model.coefficients.assign(v.begin(), v.begin() + terms);
   result.inverse = emorSamples(result.model.coefficients);
-  // Tiny negative steps the SLSQP tolerance lets through: make the table exactly non-decreasing.
-  for (size_t j = 1; j < result.inverse.size(); ++j) result.inverse[j] = std::max(result.inverse[j], result.inverse[j - 1]);
+  // Tiny negative steps the SLSQP tolerance (or a monotone grid coarser than the 1024 nodes) lets through: make the
+  // table exactly non-decreasing and ≤ φ(1) = 1.
+  for (size_t j = 1; j < result.inverse.size(); ++j)
+    result.inverse[j] = std::min(std::max(result.inverse[j], result.inverse[j - 1]), 1.0);
   result.inverse.front() = 0;
   result.inverse.back() = 1;
   Eigen::VectorXd phi(n);

@@ -56,6 +56,11 @@ struct ScaledFitOptions {
   // 0.20 to 0.12 at unchanged shape error; it costs on film-like shoulders; 1e-3 bends them further
   // (docs/RESULTS.md#chart).
   double exponent_smoothness = 1e-4;
+  // Variable projection: the scales s_g are not optimisation variables but their closed-form least-squares values
+  // for the current φ (exact samples only), so SLSQP works on the K coefficients alone. Needed when there are many
+  // groups (a multi-exposure bracket: one group per scene point, bracket_calibration.hpp); false keeps the joint
+  // (c, s) optimisation the chart calibration was measured with.
+  bool profile_scales = false;
   void check() const;
 };
 

@@ -1,0 +1,499 @@
+#include "crfcal/bracket_calibration.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <limits>
+#include <cmath>
+#include <numeric>
+#include <random>
+#include <sstream>
+
+#include <opencv2/imgproc.hpp>
+
+#include "crfcal/curve_comparison.hpp"
+#include "crfcal/emor.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/exposure_fit.hpp"
+#include "crfcal/response_curve.hpp"
+#include "image_units.hpp"
+
+namespace crfcal {
+
+void BracketSamplingOptions::check() const {
+  if (points < 10) throw InvalidInput("bracket sampling: points must be ≥ 10", ErrorSubject::options);
+  if (brightness_classes < 1) throw InvalidInput("bracket sampling: brightness_classes must be ≥ 1", ErrorSubject::options);
+  if (window < 1 || window % 2 == 0) throw InvalidInput("bracket sampling: window must be odd and ≥ 1", ErrorSubject::options);
+  if (!(flat_fraction > 0 && flat_fraction <= 1))
+    throw InvalidInput("bracket sampling: flat_fraction must be in (0, 1]", ErrorSubject::options);
+  if (candidates < points) throw InvalidInput("bracket sampling: candidates must be ≥ points", ErrorSubject::options);
+  if (!(low >= 0 && low < high && high <= 1))
+    throw InvalidInput("bracket sampling: need 0 ≤ low < high ≤ 1", ErrorSubject::options);
+  if (margin < 0) throw InvalidInput("bracket sampling: margin must be ≥ 0", ErrorSubject::options);
+}
+
+void BracketCalibrationOptions::check() const {
+  registration.check();
+  sampling.check();
+  fit.check();
+  if (max_dimension < 0 || (max_dimension > 0 && max_dimension < 64))
+    throw InvalidInput("bracket: max_dimension must be 0 or ≥ 64", ErrorSubject::options);
+  if (exposure_rounds < 0) throw InvalidInput("bracket: exposure_rounds must be ≥ 0", ErrorSubject::options);
+  if (!(min_scene_correlation >= -1 && min_scene_correlation <= 1))
+    throw InvalidInput("bracket: min_scene_correlation must be in [-1, 1]", ErrorSubject::options);
+  if (!(max_exposure_deviation >= 0))
+    throw InvalidInput("bracket: max_exposure_deviation must be ≥ 0", ErrorSubject::options);
+  if (channels.empty()) throw InvalidInput("bracket: no channels", ErrorSubject::options);
+  for (int c : channels)
+    if (c < 0 || c > 2) throw InvalidInput("bracket: channel must be 0, 1 or 2", ErrorSubject::options);
+}
+
+std::string BracketCalibrationResult::summary() const {
+  std::ostringstream out;
+  out << points << " scene points; exposures (" << exposure_source << ", relative to the reference):";
+  for (const auto& f : frames) out << ' ' << f.fitted_exposure << (f.reference ? "*" : "");
+  out << "\n";
+  for (const auto& c : channels)
+    out << channelName(c.channel) << ": " << c.fit.summary() << ", " << c.points << " points, GGCM deviation "
+        << c.ggcm_rmse << "\n";
+  return out.str();
+}
+
+namespace {
+
+// The frames in the reference frame's geometry, unit scale, CV_32F, plus where all of them have data.
+struct AlignedBracket {
+  std::vector<cv::Mat> images;  // CV_32FC1 or CV_32FC3 (BGR)
+  cv::Mat valid;                // CV_8U, 255 where every frame has data (eroded by the margin)
+};
+
+cv::Mat unitFloat(const cv::Mat& image) {
+  cv::Mat out;
+  image.convertTo(out, CV_32F, 1.0 / detail::fullScale(image));
+  return out;
+}
+
+AlignedBracket alignFrames(const std::vector<BracketFrame>& frames, int reference,
+                           const BracketCalibrationOptions& options, std::vector<BracketFrameResult>& results,
+                           const BracketProgress& progress) {
+  const cv::Mat& ref = frames[static_cast<size_t>(reference)].image;
+  AlignedBracket aligned;
+  aligned.valid = cv::Mat(ref.size(), CV_8U, cv::Scalar(255));
+  const int margin = options.sampling.margin;
+  if (margin > 0) {
+    aligned.valid.setTo(0);
+    const cv::Rect inner(margin, margin, ref.cols - 2 * margin, ref.rows - 2 * margin);
+    if (inner.width > 0 && inner.height > 0) aligned.valid(inner).setTo(255);
+  }
+  for (size_t j = 0; j < frames.size(); ++j) {
+    const BracketFrame& frame = frames[j];
+    if (frame.image.channels() != ref.channels())
+      throw InvalidInput("has " + std::to_string(frame.image.channels()) + " channels, " +
+                             frames[static_cast<size_t>(reference)].name + " has " + std::to_string(ref.channels()),
+                         ErrorSubject::pair, frame.name);
+    if (int(j) == reference) {
+      aligned.images.push_back(unitFloat(frame.image));
+      continue;
+    }
+    if (!options.register_frames) {
+      if (frame.image.size() != ref.size())
+        throw InvalidInput("differs in size from " + frames[static_cast<size_t>(reference)].name +
+                               " (unregistered frames must have the same size)",
+                           ErrorSubject::pair, frame.name);
+      aligned.images.push_back(unitFloat(frame.image));
+      continue;
+    }
+    RegistrationResult registration;
+    try {
+      registration = registerPair(frame.image, ref, options.registration);
+    } catch (const InvalidInput& e) {
+      throw InvalidInput("not the same scene as " + frames[static_cast<size_t>(reference)].name + " (" + e.reason() + ")",
+                         ErrorSubject::pair, frame.name);
+    }
+    results[j].registration = registration;
+    aligned.images.push_back(unitFloat(warpToBlurred(frame.image, registration.homography, ref.size())));
+    aligned.valid &= overlapMask(frame.image.size(), registration.homography, ref.size(), std::max(margin, 1));
+    if (progress) progress("register", double(j + 1) / double(frames.size()), frame.name);
+  }
+  return aligned;
+}
+
+cv::Mat greyOf(const cv::Mat& unit_image) {
+  if (unit_image.channels() == 1) return unit_image;
+  cv::Mat grey;
+  cv::cvtColor(unit_image, grey, cv::COLOR_BGR2GRAY);
+  return grey;
+}
+
+// Spearman rank correlation of two aligned grey frames over the pixels where both are well exposed and `valid`
+// (a regular subsample): the frames of one scene are related by a monotone map (φ and the exposure ratio), so
+// their ranks agree (≈ 1 up to noise); another scene gives ≈ 0. NaN with fewer than 200 such pixels.
+double rankCorrelation(const cv::Mat& a, const cv::Mat& b, const cv::Mat& valid, double low, double high) {
+  std::vector<float> va, vb;
+  const int step = std::max(1, int(std::sqrt(double(a.total()) / 40000.0)));
+  for (int y = 0; y < a.rows; y += step)
+    for (int x = 0; x < a.cols; x += step) {
+      const float p = a.at<float>(y, x), q = b.at<float>(y, x);
+      if (!valid.at<uchar>(y, x) || p <= low || p >= high || q <= low || q >= high) continue;
+      va.push_back(p);
+      vb.push_back(q);
+    }
+  if (va.size() < 200) return std::numeric_limits<double>::quiet_NaN();
+  auto ranks = [](const std::vector<float>& v) {
+    std::vector<std::size_t> order(v.size());
+    std::iota(order.begin(), order.end(), 0);
+    std::sort(order.begin(), order.end(), [&](auto i, auto j) { return v[i] < v[j]; });
+    std::vector<double> r(v.size());
+    for (std::size_t k = 0; k < order.size(); ++k) r[order[k]] = double(k);
+    return r;
+  };
+  const std::vector<double> ra = ranks(va), rb = ranks(vb);
+  const double mean = (double(ra.size()) - 1) / 2;
+  double sab = 0, saa = 0, sbb = 0;
+  for (std::size_t k = 0; k < ra.size(); ++k) {
+    sab += (ra[k] - mean) * (rb[k] - mean);
+    saa += (ra[k] - mean) * (ra[k] - mean);
+    sbb += (rb[k] - mean) * (rb[k] - mean);
+  }
+  return sab / std::sqrt(saa * sbb);
+}
+
+// Each frame against its neighbour in brightness: the same scene, or refused naming the frame.
+void requireSameScene(const std::vector<cv::Mat>& greys, const cv::Mat& valid, const std::vector<BracketFrame>& frames,
+                      int reference, const BracketCalibrationOptions& options, std::vector<BracketFrameResult>& results) {
+  std::vector<std::size_t> order(greys.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::vector<double> mean(greys.size());
+  for (std::size_t j = 0; j < greys.size(); ++j) mean[j] = cv::mean(greys[j], valid)[0];
+  std::sort(order.begin(), order.end(), [&](auto a, auto b) { return mean[a] < mean[b]; });
+  for (std::size_t k = 1; k < order.size(); ++k) {
+    const std::size_t a = order[k - 1], b = order[k];
+    const double rho = rankCorrelation(greys[a], greys[b], valid, options.sampling.low, options.sampling.high);
+    results[b].scene_correlation = rho;
+    if (k == 1) results[a].scene_correlation = rho;
+    if (!(rho < options.min_scene_correlation)) continue;  // NaN (too few common pixels): no verdict
+    // Blame the frame that is not the reference (or the brighter one).
+    const std::size_t blamed = int(b) == reference ? a : b;
+    const std::size_t other = blamed == a ? b : a;
+    char text[160];
+    std::snprintf(text, sizeof text, "not the same scene as %s (rank correlation %.2f of the pixels both expose well, "
+                                     "after registration; the same scene gives > %.2f)",
+                  frames[other].name.c_str(), rho, options.min_scene_correlation);
+    throw InvalidInput(text, ErrorSubject::pair, frames[blamed].name);
+  }
+}
+
+// Start exposures relative to the reference frame without EXIF: consecutive frames (ordered by mean brightness)
+// compared through the EMoR mean curve (estimateExposureRatio on registered pixels), chained.
+std::vector<double> exposuresFromImages(const std::vector<cv::Mat>& greys, int reference) {
+  const std::size_t n = greys.size();
+  std::vector<double> mean(n);
+  for (std::size_t j = 0; j < n; ++j) mean[j] = cv::mean(greys[j])[0];
+  std::vector<std::size_t> order(n);
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(), [&](auto a, auto b) { return mean[a] < mean[b]; });
+  const auto mean_curve = emor::inverseMean();
+  const ResponseCurve curve = ResponseCurve::fromSamples(std::vector<double>(mean_curve.begin(), mean_curve.end()));
+  std::vector<double> exposure(n, 1.0);
+  for (std::size_t k = 1; k < n; ++k) {
+    ExposureRatioOptions ratio_options;
+    double ratio = 1;
+    try {
+      ratio = estimateExposureRatio(greys[order[k - 1]], greys[order[k]], curve, ratio_options).ratio;
+    } catch (const InvalidInput&) {
+      ratio_options.registered = false;  // too few pixels well exposed in both: histogram specification
+      ratio = estimateExposureRatio(greys[order[k - 1]], greys[order[k]], curve, ratio_options).ratio;
+    }
+    exposure[order[k]] = exposure[order[k - 1]] * std::max(ratio, 1.0001);
+  }
+  const double at_reference = exposure[static_cast<std::size_t>(reference)];
+  for (double& e : exposure) e /= at_reference;
+  return exposure;
+}
+
+// The sampled scene points: position and, per frame, the local mean of each plane (BGR order, or grey).
+struct Samples {
+  std::vector<cv::Point> positions;
+  std::vector<std::vector<cv::Vec3f>> values;  // [point][frame]
+};
+
+Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions& options) {
+  const cv::Size size = aligned.images.front().size();
+  const cv::Size window(options.window, options.window);
+  std::vector<cv::Mat> means, grey_means, deviations;  // per frame: local mean of the planes, of the grey, its std
+  for (const cv::Mat& image : aligned.images) {
+    cv::Mat mean, grey_mean, grey_sq;
+    cv::boxFilter(image, mean, CV_32F, window, {-1, -1}, true, cv::BORDER_REFLECT);
+    const cv::Mat grey = greyOf(image);
+    cv::boxFilter(grey, grey_mean, CV_32F, window, {-1, -1}, true, cv::BORDER_REFLECT);
+    cv::boxFilter(grey.mul(grey), grey_sq, CV_32F, window, {-1, -1}, true, cv::BORDER_REFLECT);
+    cv::Mat variance = grey_sq - grey_mean.mul(grey_mean);
+    cv::max(variance, 0, variance);
+    cv::Mat deviation;
+    cv::sqrt(variance, deviation);
+    means.push_back(mean);
+    grey_means.push_back(grey_mean);
+    deviations.push_back(deviation);
+  }
+  // Candidates on a regular grid inside the valid area: brightness key (Σ_j grey mean, monotone in E) and the
+  // largest local std over the frames where the point is neither dark nor clipped (there the std is meaningless).
+  const double step = std::max(1.0, std::sqrt(double(size.area()) / options.candidates));
+  struct Candidate {
+    cv::Point p;
+    float key, roughness;
+  };
+  std::vector<Candidate> candidates;
+  for (double y = step / 2; y < size.height; y += step)
+    for (double x = step / 2; x < size.width; x += step) {
+      const cv::Point p{int(x), int(y)};
+      if (!aligned.valid.at<uchar>(p)) continue;
+      float key = 0, roughness = 0;
+      int informative = 0;
+      for (std::size_t j = 0; j < means.size(); ++j) {
+        const float g = grey_means[j].at<float>(p);
+        key += g;
+        if (g > options.low && g < options.high) {
+          roughness = std::max(roughness, deviations[j].at<float>(p));
+          ++informative;
+        }
+      }
+      if (informative >= 2) candidates.push_back({p, key, roughness});
+    }
+  if (candidates.size() < 10) throw InvalidInput("too few positions are well exposed in two frames", ErrorSubject::pair);
+  // Brightness classes of equal width in the key; in each, the flattest fraction, drawn evenly.
+  float lo = candidates.front().key, hi = lo;
+  for (const auto& c : candidates) lo = std::min(lo, c.key), hi = std::max(hi, c.key);
+  const int classes = options.brightness_classes;
+  std::vector<std::vector<Candidate>> bins(static_cast<std::size_t>(classes));
+  for (const auto& c : candidates) {
+    const int b = hi > lo ? std::min(classes - 1, int((c.key - lo) / (hi - lo) * classes)) : 0;
+    bins[static_cast<std::size_t>(b)].push_back(c);
+  }
+  std::mt19937_64 rng(options.seed);
+  std::vector<cv::Point> chosen;
+  int remaining_bins = 0;
+  for (const auto& bin : bins) remaining_bins += !bin.empty();
+  int budget = options.points;
+  for (auto& bin : bins) {
+    if (bin.empty()) continue;
+    const int quota = budget / std::max(remaining_bins, 1);
+    --remaining_bins;
+    std::sort(bin.begin(), bin.end(), [](const auto& a, const auto& b) { return a.roughness < b.roughness; });
+    const std::size_t flat = std::max<std::size_t>(1, std::size_t(std::ceil(bin.size() * options.flat_fraction)));
+    std::vector<cv::Point> pool;
+    for (std::size_t i = 0; i < flat; ++i) pool.push_back(bin[i].p);
+    std::shuffle(pool.begin(), pool.end(), rng);
+    const int take = std::min<int>(quota, int(pool.size()));
+    chosen.insert(chosen.end(), pool.begin(), pool.begin() + take);
+    budget -= take;
+  }
+  Samples samples;
+  for (const cv::Point& p : chosen) {
+    std::vector<cv::Vec3f> v;
+    for (const cv::Mat& m : means) {
+      if (m.channels() == 1) {
+        const float g = m.at<float>(p);
+        v.emplace_back(g, g, g);
+      } else {
+        v.push_back(m.at<cv::Vec3f>(p));
+      }
+    }
+    samples.positions.push_back(p);
+    samples.values.push_back(std::move(v));
+  }
+  return samples;
+}
+
+// Weight of an observation t_j = s_p φ(z): the residual in exposure units is relative to t_j, and for a camera-like
+// φ (local exponent γ) a constant noise σ on z gives a relative irradiance error ≈ γσ/z, so w ∝ (z/t_j)²; tapered to
+// 0.1 over the last 0.1 below the clipping limit (a channel about to clip first bends, then saturates).
+double observationWeight(double z, double exposure, double high) {
+  const double taper = std::clamp((high - z) / 0.1, 0.1, 1.0);
+  return taper * (z / exposure) * (z / exposure);
+}
+
+std::vector<ScaledObservation> channelObservations(const Samples& samples, int plane, const std::vector<double>& exposure,
+                                                   const BracketSamplingOptions& options, int& points) {
+  std::vector<ScaledObservation> observations;
+  points = 0;
+  for (std::size_t p = 0; p < samples.values.size(); ++p) {
+    std::vector<ScaledObservation> own;
+    for (std::size_t j = 0; j < exposure.size(); ++j) {
+      const double z = samples.values[p][j][plane];
+      if (z < options.low || z >= options.high) continue;
+      ScaledObservation o;
+      o.x = z;
+      o.y = exposure[j];
+      o.group = points;
+      o.fold = points % 2;
+      o.weight = observationWeight(z, exposure[j], options.high);
+      own.push_back(o);
+    }
+    if (own.size() < 2) continue;  // one value of a point says nothing about φ (its own scale absorbs it)
+    observations.insert(observations.end(), own.begin(), own.end());
+    ++points;
+  }
+  return observations;
+}
+
+// Inner frames' exposures: the median over points and channels of φ(z_pj)·s_p (= t_j when the model holds),
+// within ±max_deviation stops of the start; the darkest and brightest frames keep theirs (the span).
+void refineExposures(const Samples& samples, const std::vector<BracketChannelResult>& channels,
+                     const std::vector<int>& planes, const std::vector<double>& start, double max_deviation,
+                     const BracketSamplingOptions& options, std::vector<double>& exposure) {
+  const auto [darkest, brightest] = std::minmax_element(start.begin(), start.end());
+  for (std::size_t j = 0; j < exposure.size(); ++j) {
+    if (&start[j] == &*darkest || &start[j] == &*brightest) continue;
+    std::vector<double> estimates;
+    for (std::size_t ci = 0; ci < channels.size(); ++ci) {
+      const ScaledFitResult& fit = channels[ci].fit;
+      int group = 0;
+      for (std::size_t p = 0; p < samples.values.size(); ++p) {
+        int usable = 0;
+        for (std::size_t k = 0; k < exposure.size(); ++k) {
+          const double z = samples.values[p][k][planes[ci]];
+          usable += z >= options.low && z < options.high;
+        }
+        if (usable < 2) continue;  // the same points, in the same order, as channelObservations
+        const double z = samples.values[p][j][planes[ci]];
+        const double s = fit.scales[static_cast<std::size_t>(group)];
+        ++group;
+        if (z < options.low || z >= options.high || !(s > 0)) continue;
+        estimates.push_back(s * interpolateSamples(fit.inverse, z));
+      }
+    }
+    if (estimates.size() < 10) continue;
+    std::nth_element(estimates.begin(), estimates.begin() + long(estimates.size() / 2), estimates.end());
+    const double estimate = estimates[estimates.size() / 2];
+    const double bound = std::pow(2.0, max_deviation);
+    if (estimate > 0) exposure[j] = std::clamp(estimate, start[j] / bound, start[j] * bound);
+  }
+}
+
+BracketChannelResult fitChannel(const Samples& samples, int channel, int plane, const std::vector<double>& exposure,
+                                const BracketCalibrationOptions& options, int terms) {
+  BracketChannelResult result;
+  result.channel = channel;
+  const std::vector<ScaledObservation> observations =
+      channelObservations(samples, plane, exposure, options.sampling, result.points);
+  if (result.points < 8)
+    throw InvalidInput("channel " + channelName(channel) + ": only " + std::to_string(result.points) +
+                           " scene points are well exposed in two frames (need ≥ 8; are the exposures too far apart?)",
+                       ErrorSubject::pair);
+  ScaledFitOptions fit_options = options.fit;
+  if (terms > 0) fit_options.terms = terms;
+  result.fit = fitScaledInverse(observations, fit_options);
+  return result;
+}
+
+}  // namespace
+
+BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frames,
+                                          const BracketCalibrationOptions& options, const BracketProgress& progress) {
+  options.check();
+  if (frames.size() < 2) throw InvalidInput("a bracket needs at least 2 frames", ErrorSubject::pair);
+  int known = 0;
+  for (const auto& f : frames) {
+    if (f.image.empty()) throw InvalidInput("empty image", ErrorSubject::pair, f.name);
+    if (f.image.channels() != 1 && f.image.channels() != 3)
+      throw InvalidInput("must be grey or colour (1 or 3 channels)", ErrorSubject::pair, f.name);
+    known += f.exposure > 0;
+  }
+  if (known != 0 && known != int(frames.size()))
+    throw InvalidInput("exposures are known for " + std::to_string(known) + " of " + std::to_string(frames.size()) +
+                           " frames; give all or none",
+                       ErrorSubject::pair);
+  BracketCalibrationResult result;
+  result.exposure_source = known ? "exif" : "images";
+  // Reference: the middle exposure (given), else the middle frame; the others are registered onto it.
+  std::vector<int> order(frames.size());
+  std::iota(order.begin(), order.end(), 0);
+  if (known)
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return frames[a].exposure < frames[b].exposure; });
+  const int reference = order[order.size() / 2];
+  for (std::size_t j = 0; j < frames.size(); ++j) {
+    BracketFrameResult f;
+    f.name = frames[j].name;
+    f.nominal_exposure = frames[j].exposure;
+    f.reference = int(j) == reference;
+    f.registration.method = f.reference ? "reference" : "none";
+    result.frames.push_back(f);
+  }
+  if (known)
+    for (std::size_t j = 0; j < frames.size(); ++j)
+      for (std::size_t k = 0; k < j; ++k)
+        if (std::abs(std::log(frames[j].exposure / frames[k].exposure)) < std::log(1.05))
+          result.warnings.push_back(frames[j].name + " and " + frames[k].name +
+                                    " have the same exposure: the pair adds no range, only noise averaging");
+
+  // Working copies no larger than max_dimension (registration and sampling at that size).
+  double scale = 1;
+  std::vector<BracketFrame> working = frames;
+  if (options.max_dimension > 0) {
+    const cv::Size size = frames[static_cast<std::size_t>(reference)].image.size();
+    scale = std::min(1.0, double(options.max_dimension) / std::max(size.width, size.height));
+    if (scale < 1)
+      for (auto& f : working) cv::resize(f.image, f.image, cv::Size(), scale, scale, cv::INTER_AREA);
+  }
+  if (progress) progress("register", 0, "");
+  const AlignedBracket aligned = alignFrames(working, reference, options, result.frames, progress);
+  std::vector<cv::Mat> greys;
+  for (const cv::Mat& image : aligned.images) greys.push_back(greyOf(image));
+  requireSameScene(greys, aligned.valid, frames, reference, options, result.frames);
+  std::vector<double> start(frames.size());
+  if (known) {
+    for (std::size_t j = 0; j < frames.size(); ++j) start[j] = frames[j].exposure / frames[static_cast<size_t>(reference)].exposure;
+  } else {
+    start = exposuresFromImages(greys, reference);
+    result.warnings.push_back(
+        "no EXIF exposures: the start exposures come from the images through the EMoR mean curve, one free scale "
+        "per frame; the curve's overall exponent rests on that estimate (the bracket alone cannot fix it, Grossberg & "
+        "Nayar 2003)");
+  }
+
+  if (progress) progress("sample", 0, "");
+  const Samples samples = samplePoints(aligned, options.sampling);
+  result.points = int(samples.positions.size());
+  for (const cv::Point& p : samples.positions) result.point_positions.emplace_back(int(p.x / scale), int(p.y / scale));
+
+  const bool grey = aligned.images.front().channels() == 1;
+  std::vector<int> channels, planes;
+  for (int c : options.channels)
+    if (!grey || c == 1) channels.push_back(c), planes.push_back(grey ? 0 : 2 - c);
+  if (channels.empty()) channels.push_back(1), planes.push_back(0);
+
+  std::vector<double> exposure = start;
+  const int rounds = frames.size() > 2 ? options.exposure_rounds : 0;
+  std::vector<int> terms(channels.size(), 0);
+  for (int round = 0; round <= rounds; ++round) {
+    result.channels.clear();
+    for (std::size_t ci = 0; ci < channels.size(); ++ci) {
+      // K chosen by cross-validation in the first round, kept in the refits.
+      result.channels.push_back(fitChannel(samples, channels[ci], planes[ci], exposure, options, terms[ci]));
+      terms[ci] = result.channels.back().fit.terms;
+      if (progress)
+        progress("fit", double(round * channels.size() + ci + 1) / double((rounds + 1) * channels.size()),
+                 channelName(channels[ci]) + (round > 0 ? " (refined exposures)" : ""));
+    }
+    if (round < rounds)
+      refineExposures(samples, result.channels, planes, start, options.max_exposure_deviation, options.sampling,
+                      exposure);
+  }
+  for (std::size_t j = 0; j < frames.size(); ++j) {
+    result.frames[j].start_exposure = start[j];
+    result.frames[j].fitted_exposure = exposure[j];
+  }
+  for (auto& channel : result.channels) {
+    const ggcm::FitResult g = ggcm::fitInverse(channel.fit.inverse, options.ggcm);
+    channel.ggcm = g.model;
+    channel.ggcm_valid = g.valid;
+    channel.ggcm_rmse = curveRmse(sampleInverse(g.model, kCurveSamples), channel.fit.inverse);
+    if (channel.fit.covered_range.second - channel.fit.covered_range.first < 0.5)
+      result.warnings.push_back("channel " + channelName(channel.channel) + ": data cover only x in [" +
+                                std::to_string(channel.fit.covered_range.first) + ", " +
+                                std::to_string(channel.fit.covered_range.second) +
+                                "]; the rest of the curve is the EMoR model's extrapolation");
+  }
+  return result;
+}
+
+}  // namespace crfcal
