@@ -137,7 +137,7 @@ std::string bandSummaryTable(const std::map<double, BandSummary>& by_ratio) {
   out << "\nband of phi_G (90 %; curve_band.hpp): coverage = fraction of x samples (1024 per case, pooled) where the "
          "true phi lies inside the band. absolute: the truth as it is against [lower, upper] (phi(1) = 1; the band "
          "carries the scale's uncertainty); shape: inside the covered range, the truth times its best common scale "
-         "a (least squares onto the fit over the covered range) against fit +- shape half-width (sampling only). "
+         "a (least squares onto the fit over the covered range) against fit +- shape half-width (half-sample spread and the other candidate model, no scale part). "
          "Widths: median over cases of each case's median over the covered range.\n"
       << "| r | cases | absolute inside covered | absolute above covered | absolute below covered | shape inside "
          "covered | median width inside (absolute) | median width inside (shape) | median abs(a - 1) | band s / "

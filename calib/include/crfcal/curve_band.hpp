@@ -57,7 +57,7 @@ struct CurveBandOptions {
 
 struct CurveBand {
   std::vector<double> lower, upper;       // the band of φ with φ(1) = 1 (absolute), kCurveSamples samples
-  // Half-width of the SHAPE band (sampling error only, φ's scale aligned), kCurveSamples samples; meaningful
+  // Half-width of the SHAPE band (sampling spread and the model term, φ's scale aligned), kCurveSamples samples; meaningful
   // inside `covered`, where it is what two calibrations of one camera should agree within (compare).
   std::vector<double> shape_half_width;
   std::pair<double, double> covered{0, 1};  // the covered range the band was built for
