@@ -63,6 +63,7 @@ struct PairsArgs {
   bool unweighted_irradiance_kernel = false;
   std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   bool pairs_only = false;
+  int band_replicates = PairCalibrationOptions{}.band.replicates;  // 0: no band (and no band table)
   bool force = false;  // write into an output directory holding other files (never deletes them)
   std::string regime = "auto";  // auto | sharp-normal | real (see the top of this file); auto = real for r > 2
   std::string noise_camera = "LGE Nexus 5";  // real regime: darktable's only phone (real pairs are phone pairs)
@@ -109,6 +110,52 @@ struct RatioSummary {
   int cases = 0, done = 0, within_5_percent = 0, shape_within_001 = 0, size_limit_stops = 0, other_failures = 0;
   double sum_r_error = 0, worst_r_error = 0, sum_rmse = 0, worst_rmse = 0, sum_shape = 0, worst_shape = 0, seconds = 0;
 };
+
+// Per-ratio band scores (curve_band.hpp): x samples of the true φ_G inside the 90 % band, pooled over the cases.
+struct BandSummary {
+  int cases = 0;
+  BandScore pooled;                     // sums of samples and hits
+  std::vector<double> widths, shape_widths, scale_errors;  // per case: median widths; |a − 1| of the truth's scale
+  double band_seconds = 0, seconds = 0;  // the band's stage, the whole calibrations
+};
+
+double medianOf(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+std::string percent(int hits, int samples) {
+  if (samples == 0) return "-";
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.1f %%", 100.0 * hits / samples);
+  return buffer;
+}
+
+std::string bandSummaryTable(const std::map<double, BandSummary>& by_ratio) {
+  std::ostringstream out;
+  out << "\nband of phi_G (90 %; curve_band.hpp): coverage = fraction of x samples (1024 per case, pooled) where the "
+         "true phi lies inside the band. absolute: the truth as it is against [lower, upper] (phi(1) = 1; the band "
+         "carries the scale's uncertainty); shape: inside the covered range, the truth times its best common scale "
+         "a (least squares onto the fit over the covered range) against fit +- shape half-width (half-sample spread and the other candidate model, no scale part). "
+         "Widths: median over cases of each case's median over the covered range.\n"
+      << "| r | cases | absolute inside covered | absolute above covered | absolute below covered | shape inside "
+         "covered | median width inside (absolute) | median width inside (shape) | median abs(a - 1) | band s / "
+         "calibration s |\n"
+      << "|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const auto& [ratio, b] : by_ratio) {
+    if (b.cases == 0) continue;
+    char line[600];
+    std::snprintf(line, sizeof line, "| %.2f | %d | %s | %s | %s | %s | %.4f | %.4f | %.4f | %.0f / %.0f |\n", ratio,
+                  b.cases, percent(b.pooled.inside_hits, b.pooled.inside).c_str(),
+                  percent(b.pooled.above_hits, b.pooled.above).c_str(),
+                  percent(b.pooled.below_hits, b.pooled.below).c_str(),
+                  percent(b.pooled.shape_hits, b.pooled.inside).c_str(), medianOf(b.widths), medianOf(b.shape_widths),
+                  medianOf(b.scale_errors), b.band_seconds, b.seconds);
+    out << line;
+  }
+  return out.str();
+}
 
 std::string ratioSummaryTable(const std::map<double, RatioSummary>& by_ratio) {
   std::ostringstream out;
@@ -231,6 +278,7 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
   options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
+  options.band.replicates = args.band_replicates;
   return options;
 }
 
@@ -248,6 +296,8 @@ void writeKernels(const fs::path& dir, const cv::Mat& estimated, const cv::Mat& 
 struct CaseScores {
   double seconds = 0, rmse = 0, base = 0, rr = 0, kerr = 0, cerr = 0;
   ChannelComparison shape;
+  std::optional<BandScore> band;  // the G band against the truth (when a band was estimated)
+  double band_seconds = 0;
 };
 
 // A run of `bench pairs`: the cases in order, their rows of results.md and results.json, the totals.
@@ -256,6 +306,7 @@ struct PairsRun {
   io::OutputDirectory& out;
   const std::optional<io::CameraNoiseProfile>& noise_camera;
   std::map<double, RatioSummary>& by_ratio;
+  std::map<double, BandSummary> band_by_ratio;
   bool any_real = false;
   Progress progress;
   nlohmann::json results = nlohmann::json::array();
@@ -346,6 +397,18 @@ struct PairsRun {
     s.shape = compareCurves(sampleInverse(c.truth), r.fits.at("G").inverse_crf, {}, covered);
     row.update({{"phi_shape_rmse_G_covered", s.shape.rmse_covered_aligned}, {"phi_scale_G_covered", s.shape.scale_covered},
                 {"covered_G", {s.shape.covered.first, s.shape.covered.second}}});
+    if (r.bands.count("G")) {
+      const CurveBand& band = r.bands.at("G");
+      s.band = scoreBand(band, r.fits.at("G").inverse_crf, sampleInverse(c.truth));
+      s.band_seconds = band.seconds;
+      row["band_G"] = {{"inside", s.band->inside}, {"inside_hits", s.band->inside_hits}, {"above", s.band->above},
+                       {"above_hits", s.band->above_hits}, {"below", s.band->below}, {"below_hits", s.band->below_hits},
+                       {"shape_hits", s.band->shape_hits}, {"truth_scale", s.band->truth_scale},
+                       {"median_width_inside", s.band->median_width_inside},
+                       {"median_shape_width_inside", s.band->median_shape_width_inside},
+                       {"scale_range", {band.scale_range.first, band.scale_range.second}},
+                       {"seconds", band.seconds}, {"summary", band.summary()}};
+    }
     return s;
   }
 
@@ -365,7 +428,7 @@ struct PairsRun {
     return line;
   }
 
-  void count(RatioSummary& summary, const CaseScores& s) {
+  void count(RatioSummary& summary, const CaseScores& s, double ratio) {
     const double r_error = std::abs(s.rr - 1), shape = s.shape.rmse_covered_aligned;
     ++summary.done;
     summary.sum_r_error += r_error;
@@ -377,6 +440,19 @@ struct PairsRun {
     summary.worst_shape = std::max(summary.worst_shape, shape);
     summary.shape_within_001 += shape <= 0.01;
     summary.seconds += s.seconds;
+    if (s.band) {
+      BandSummary& b = band_by_ratio[ratio];
+      ++b.cases;
+      b.pooled.inside += s.band->inside, b.pooled.inside_hits += s.band->inside_hits;
+      b.pooled.above += s.band->above, b.pooled.above_hits += s.band->above_hits;
+      b.pooled.below += s.band->below, b.pooled.below_hits += s.band->below_hits;
+      b.pooled.shape_hits += s.band->shape_hits;
+      b.widths.push_back(s.band->median_width_inside);
+      b.shape_widths.push_back(s.band->median_shape_width_inside);
+      b.scale_errors.push_back(std::abs(s.band->truth_scale - 1));
+      b.band_seconds += s.band_seconds;
+      b.seconds += s.seconds;
+    }
     sum_rmse += s.rmse;
     sum_base += s.base;
     sum_r += r_error;
@@ -407,7 +483,7 @@ struct PairsRun {
       const CaseScores s = calibrate(c, pair, photo.size(), dir, t0, row);
       const std::string line = tableRow(c, s);
       table << line;
-      count(summary, s);
+      count(summary, s, ratio);
       progress.done(line);
     } catch (const Error& e) {
       row["error"] = e.what();
@@ -431,6 +507,7 @@ struct PairsRun {
       table << line;
     }
     if (any_real && !args.pairs_only) table << ratioSummaryTable(by_ratio);
+    if (!band_by_ratio.empty()) table << bandSummaryTable(band_by_ratio);
   }
 };
 
@@ -527,6 +604,10 @@ const BenchRegistration registration(
                          "camera's lowest profiled ISO)")
           ->capture_default_str()
           ->check(CLI::NonNegativeNumber);
+      command.add_option("--band-replicates", args->band_replicates,
+                         "Half-sample refits of the band of phi (even; 0: no band, no band table), as calibrate")
+          ->capture_default_str()
+          ->check(CLI::Range(0, 200));
       command.add_flag("--pairs-only", args->pairs_only, "Only write the pairs (no calibration)");
       command.add_option("-o,--output", args->output, "Output directory")->required();
       command.add_flag("--force", args->force, kForceHelp);

@@ -39,6 +39,7 @@ struct CalibrateArgs {
   std::string kernel_file;
   int threads = 0;
   int rounds = 2;
+  int band_replicates = PairCalibrationOptions{}.band.replicates;  // the band of φ (curve_band.hpp); 0: none
   std::string blurred = "auto";
   bool no_white_balance = false;
   bool no_register = false;
@@ -191,6 +192,7 @@ PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nomi
   options.kernel.kernel_size = args.kernel_size;
   options.rgb = args.channels == "rgb";
   options.rounds = args.rounds;
+  options.band.replicates = args.band_replicates;
   options.register_pair = !args.no_register;
   options.fit.nominal_ratio = nominal_ratio;
   options.fit.fit_ratio = !args.fix_ratio;
@@ -363,6 +365,13 @@ const CommandRegistration registration(
       command.add_option("--kernel", args->kernel_file, "Use this kernel (text matrix or image) instead of estimating")
           ->check(CLI::ExistingFile);
       command.add_option("--rounds", args->rounds, "Kernel <-> phi rounds after the first fit")->check(CLI::Range(0, 10));
+      command.add_option("--band-replicates", args->band_replicates,
+                         "Half-sample refits per channel for the 90 % band of phi (even; more: a steadier band, "
+                         "each costs about half a fit; 0: no band)")
+          ->capture_default_str()
+          ->check(CLI::Range(0, 200) & CLI::Validator([](std::string& v) {
+                    return std::stoi(v) % 2 ? std::string("must be even") : std::string();
+                  }, "EVEN"));
       command.add_option("--blurred", args->blurred, "Which argument is the blurred shot: auto, first, second")
           ->check(CLI::IsMember({"auto", "first", "second"}));
       command.add_option("--threads", args->threads, "Worker threads, 0 .. " + std::to_string(kMaxThreads) +

@@ -4,15 +4,18 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <memory>
 #include <optional>
 
 #include <nlohmann/json.hpp>
 
 #include "command.hpp"
+#include "crfcal/curve_band.hpp"
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/band_report.hpp"
 #include "crfcal/io/plot.hpp"
 #include "crfcal/io/report.hpp"
 
@@ -67,6 +70,37 @@ CurveComparison::Range toleranceRange(const std::string& name) {
   return name == "covered"   ? CurveComparison::Range::Covered
          : name == "aligned" ? CurveComparison::Range::CoveredAligned
                              : CurveComparison::Range::Full;
+}
+
+// Per compared channel, the agreement judged by the reports' bands (curve_band.hpp), when either report has one and
+// both curves share its grid; absent otherwise.
+using Agreements = std::map<std::string, BandAgreement>;
+
+Agreements bandAgreements(const CompareArgs& args, const io::CalibrationReport& a, const io::CalibrationReport& b,
+                          const CurveComparison& comparison) {
+  const auto bands_a = io::readCurveBands(a, args.a), bands_b = io::readCurveBands(b, args.b);
+  Agreements agreements;
+  for (const auto& c : comparison.channels) {
+    const auto ia = bands_a.find(c.channel_a), ib = bands_b.find(c.channel_b);
+    const CurveBand* band_a = ia == bands_a.end() ? nullptr : &ia->second;
+    const CurveBand* band_b = ib == bands_b.end() ? nullptr : &ib->second;
+    const auto& phi_a = a.inverse_crf.at(c.channel_a);
+    const auto& phi_b = b.inverse_crf.at(c.channel_b);
+    if ((!band_a && !band_b) || phi_a.size() != phi_b.size()) continue;
+    agreements[c.channel] = bandAgreement(phi_a, band_a, phi_b, band_b, c.covered, c.scale_covered);
+  }
+  return agreements;
+}
+
+void printBandAgreements(const Agreements& agreements) {
+  if (agreements.empty()) return;
+  std::printf("agreement by the bands over the covered range (A vs a*B; shape bands combined; about the band's level "
+              "when the curves differ only by sampling error; mean z^2 about 1):\n");
+  for (const auto& [channel, g] : agreements)
+    std::printf("  %-2s within the combined %.0f %% band %5.1f %% of %d samples, mean z^2 %.3g, absolute bands "
+                "overlap %5.1f %%\n",
+                channel.c_str(), 100 * g.level, 100 * g.fraction_within, g.samples, g.mean_z2,
+                100 * g.fraction_absolute_overlap);
 }
 
 // The console table: per-channel errors, then both reports' exposure ratios.
@@ -128,7 +162,7 @@ void writeComparePlot(io::OutputDirectory& out, const io::CalibrationReport& a, 
 }
 
 nlohmann::json compareJson(const CompareArgs& args, const io::CalibrationReport& a, const io::CalibrationReport& b,
-                           const CurveComparison& comparison, bool pass) {
+                           const CurveComparison& comparison, const Agreements& agreements, bool pass) {
   nlohmann::json json;
   json["a"] = args.a;
   json["b"] = args.b;
@@ -147,6 +181,15 @@ nlohmann::json compareJson(const CompareArgs& args, const io::CalibrationReport&
                                 {"max_error_covered", c.max_error_covered},
                                 {"scale_covered", c.scale_covered},
                                 {"rmse_covered_aligned", c.rmse_covered_aligned}});
+  for (auto& entry : json["channels"]) {
+    const auto g = agreements.find(entry["channel"].get<std::string>());
+    if (g == agreements.end()) continue;
+    entry["band_agreement"] = {{"samples", g->second.samples},
+                               {"level", g->second.level},
+                               {"fraction_within", g->second.fraction_within},
+                               {"mean_z2", g->second.mean_z2},
+                               {"fraction_absolute_overlap", g->second.fraction_absolute_overlap}};
+  }
   json["worst_rmse"] = comparison.worst_rmse;
   json["worst_rmse_covered"] = comparison.worst_rmse_covered;
   json["worst_rmse_covered_aligned"] = comparison.worst_rmse_covered_aligned;
@@ -168,16 +211,20 @@ int runCompare(const CompareArgs& args) {
   CurveComparisonOptions options;
   options.samples = args.samples;
   const CurveComparison comparison = compareChannels(a.inverse_crf, b.inverse_crf, a.covered_range, b.covered_range, options);
+  const Agreements agreements = bandAgreements(args, a, b, comparison);
 
   const CurveComparison::Range range = toleranceRange(args.tolerance_range);
   const bool pass = !args.tolerance || comparison.withinTolerance(*args.tolerance, range);
 
-  if (!args.quiet) printComparison(args, a, b, comparison);
+  if (!args.quiet) {
+    printComparison(args, a, b, comparison);
+    printBandAgreements(agreements);
+  }
 
   if (!args.output.empty()) {
     io::OutputDirectory& out = *staged;
     writeComparePlot(out, a, b, comparison);
-    io::writeTextFile(out.file("compare.json"), compareJson(args, a, b, comparison, pass).dump(2) + "\n");
+    io::writeTextFile(out.file("compare.json"), compareJson(args, a, b, comparison, agreements, pass).dump(2) + "\n");
     out.commit();
     if (!args.quiet) std::printf("wrote %s/{compare.png, compare.json}\n", args.output.c_str());
   }

@@ -5,6 +5,7 @@
 
 #include "command.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/io/band_report.hpp"
 #include "crfcal/io/lut_export.hpp"
 #include "crfcal/io/output_guard.hpp"
 #include "crfcal/io/report.hpp"
@@ -21,7 +22,22 @@ struct ExportArgs {
   int size = 0;
   std::string channel;
   std::string title;
+  std::string band;  // empty: the curve; lower / upper: that limit of the report's band (inverse_crf_band)
 };
+
+// The report with every channel's curve replaced by its band's `limit` ("lower" or "upper"). Throws naming the
+// report when it has no band for a channel (reports of chart, simulate or crfcal before the band).
+io::CalibrationReport withBandLimit(io::CalibrationReport report, const std::string& limit, const std::string& path) {
+  const auto bands = io::readCurveBands(report, path);
+  for (auto& [name, curve] : report.inverse_crf) {
+    const auto band = bands.find(name);
+    if (band == bands.end())
+      throw Error("no band for channel " + name + " (inverse_crf_band; written by calibrate)", ErrorSubject::curve, path);
+    curve = limit == "lower" ? band->second.lower : band->second.upper;
+    report.models.erase(name);  // the parametric model is the curve's, not the limit's
+  }
+  return report;
+}
 
 int runExport(const ExportArgs& args) {
   io::checkOutputFile(args.output, {"export", {args.report}});  // never the report itself; writable
@@ -47,7 +63,8 @@ int runExport(const ExportArgs& args) {
   else if (options.direction == io::LutDirection::Forward) options.title = "crfcal camera response";
   options.check();
 
-  const io::CalibrationReport report = io::readReport(args.report);
+  io::CalibrationReport report = io::readReport(args.report);
+  if (!args.band.empty()) report = withBandLimit(std::move(report), args.band, args.report);
   const io::LutExportResult result = io::exportLut(report, args.output, options);
   std::printf("%s\n", result.summary().c_str());
   return kExitOk;
@@ -83,6 +100,10 @@ const CommandRegistration registration(
       command.add_option("--title", args->title,
                          "Title written into cube/clf files (default: 'crfcal inverse camera response', with "
                          "--direction forward 'crfcal camera response')");
+      command.add_option("--band", args->band,
+                         "Write a limit of the report's pointwise band of phi instead of the curve: lower or upper "
+                         "(inverse_crf_band of calibrate's report.json; the band's level is in the report)")
+          ->check(CLI::IsMember({"lower", "upper"}));
       return [args] { return runExport(*args); };
     });
 

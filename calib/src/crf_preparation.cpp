@@ -100,9 +100,13 @@ cv::Mat selectionWeight(const Prepared& prep, const CrfFitOptions& options) {
 void selectPixels(Prepared& prep, const cv::Rect& inside, const cv::Mat& bad, const cv::Mat& weight,
                   const CrfFitOptions& options, CrfPixelAccounting& acc) {
   std::vector<cv::Point> candidates_px;
+  const cv::Mat& selection = options.pixel_selection;
+  if (!selection.empty() && (selection.size() != bad.size() || selection.type() != CV_8U))
+    throw InvalidInput("fit: pixel_selection must be a CV_8U mask of the images' size");
   for (int y = inside.y; y < inside.y + inside.height; ++y)
     for (int x = inside.x; x < inside.x + inside.width; ++x) {
       if (bad.at<std::uint8_t>(y, x)) continue;
+      if (!selection.empty() && !selection.at<std::uint8_t>(y, x)) continue;  // not in this resample
       if (weight.at<double>(y, x) > 0) candidates_px.emplace_back(x, y);
       else ++acc.low_weight;
     }

@@ -22,6 +22,7 @@ void PairCalibrationOptions::check() const {
   if (!(irradiance_kernel_lambda >= 0)) throw InvalidInput("irradiance_kernel_lambda must be >= 0");
   if (!(small_blur_ratio_tolerance >= 0)) throw InvalidInput("small_blur_ratio_tolerance must be >= 0");
   effects.check();
+  band.check();
 }
 
 std::string PairCalibrationResult::summary() const {
@@ -34,6 +35,7 @@ std::string PairCalibrationResult::summary() const {
     text += buffer;
   }
   for (const auto& [name, fit] : fits) text += "\n" + name + ": " + fit.summary();
+  for (const auto& [name, band] : bands) text += "\nband " + name + ": " + band.summary();
   if (!effects.entries.empty()) text += "\n" + effects.summary();
   return text;
 }
@@ -70,6 +72,7 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   detail::fitKernelPhiRounds(state);
   if (options.effects.enabled) detail::diagnoseResidualEffects(state);
   detail::computeVerdict(state);
+  if (options.band.replicates > 0) detail::estimateBands(state);
   return std::move(state.result);
 }
 

@@ -9,6 +9,7 @@
 //   kernel↔φ rounds  pair_stage_rounds.cpp   φ_G, the small-blur hold of r, K re-estimated in the irradiance domain
 //   effects          pair_stage_effects.cpp  named effects on the residuals (effects.hpp)
 //   verdict          pair_stage_verdict.cpp  Γ map (Sec. 3), weights, warnings and the data's covered range
+//   band             pair_stage_band.cpp     the pointwise band of φ (curve_band.hpp) over the covered range
 // Internal to calib (not installed). Everything works in the SHARP frame: the smooth blurred shot is resampled,
 // the noisy sharp shot never is (registration.hpp, warpToSharp).
 #include <chrono>
@@ -131,5 +132,8 @@ void diagnoseResidualEffects(PairCalibrationState& state);
 
 // ---- verdict (pair_stage_verdict.cpp)
 void computeVerdict(PairCalibrationState& state);
+
+// ---- band (pair_stage_band.cpp): the pointwise band of φ per channel over its covered range (curve_band.hpp)
+void estimateBands(PairCalibrationState& state);
 
 }  // namespace crfcal::detail

@@ -21,7 +21,7 @@ cv::Scalar channelColour(const std::string& c) {
 }
 
 // φ per channel: a thick line over the intensities the data cover, a thin one where it is extrapolated, the
-// covered ranges as bars along the bottom; the RAW truth (when measured) dashed.
+// covered ranges as bars along the bottom, the pointwise band shaded (curve_band.hpp); the RAW truth dashed.
 void writeCurveFigure(const std::filesystem::path& path, const CalibrationFigureInputs& in) {
   std::vector<double> x(kCurveSamples);
   for (int i = 0; i < kCurveSamples; ++i) x[i] = static_cast<double>(i) / (kCurveSamples - 1);
@@ -31,6 +31,10 @@ void writeCurveFigure(const std::filesystem::path& path, const CalibrationFigure
   for (const char* c : {"R", "G", "B"}) {
     if (!in.result.fits.count(c)) continue;
     const std::vector<double>& phi = in.result.fits.at(c).inverse_crf;
+    const auto band = in.result.bands.find(c);
+    if (band != in.result.bands.end() && band->second.lower.size() == x.size())
+      plot.bands.push_back({x, band->second.lower, band->second.upper, channelColour(c),
+                            number("%.0f", 100 * band->second.level) + " % band " + c + " (shaded)"});
     const auto covered = in.result.covered_range.find(c);
     if (covered == in.result.covered_range.end()) {
       series.push_back({x, phi, channelColour(c), std::string("phi ") + c});

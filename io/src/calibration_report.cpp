@@ -3,6 +3,8 @@
 #include <cmath>
 #include <vector>
 
+#include "crfcal/io/band_report.hpp"
+
 namespace crfcal::io {
 namespace {
 
@@ -171,6 +173,12 @@ json rawTruthJson(const RawTruthReport& truth) {
   return out;
 }
 
+// The band of φ per channel (issue 19; band_report.hpp). Its covered range is report.json's "covered_range".
+void addCurveBands(const PairCalibrationResult& result, json& extra) {
+  if (result.bands.empty()) return;
+  extra["inverse_crf_band"] = curveBandsJson(result.bands);
+}
+
 }  // namespace
 
 json curveComparisonJson(const CurveComparison& comparison) {
@@ -223,6 +231,7 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
                                 result.effects.refit_rejected_reason + "); the base fit's phi is reported");
   }
   addFitDetails(result, extra);
+  addCurveBands(result, extra);
   if (context.raw_truth) {
     if (context.raw_truth->compared_on_full_range_only)
       report.warnings.push_back("raw truth: the pair and the RAW truth cover disjoint intensity ranges; compared "

@@ -109,6 +109,16 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
 
   cv::Mat plot = canvas(area);
   const cv::Point offset(area.x, area.y);
+  for (const auto& b : options.bands) {  // translucent polygons: lower left to right, upper back
+    std::vector<cv::Point> polygon;
+    const size_t n = std::min({b.x.size(), b.lower.size(), b.upper.size()});
+    for (size_t i = 0; i < n; ++i) polygon.emplace_back(cvRound(px(b.x[i]) - offset.x), cvRound(py(b.lower[i]) - offset.y));
+    for (size_t i = n; i-- > 0;) polygon.emplace_back(cvRound(px(b.x[i]) - offset.x), cvRound(py(b.upper[i]) - offset.y));
+    if (polygon.size() < 3) continue;
+    cv::Mat layer = plot.clone();
+    cv::fillPoly(layer, std::vector<std::vector<cv::Point>>{polygon}, b.color, cv::LINE_AA);
+    cv::addWeighted(layer, b.opacity, plot, 1 - b.opacity, 0, plot);
+  }
   for (const auto& s : series) {
     std::vector<cv::Point2d> points;
     for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
@@ -145,6 +155,14 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
       cv::line(canvas, {area.x + 12, legend_y - 5}, {area.x + 40, legend_y - 5}, s.color, s.thickness >= 2 ? 3 : 1,
                cv::LINE_AA);
     cv::putText(canvas, s.label, {area.x + 48, legend_y}, font, 0.45, black, 1, cv::LINE_AA);
+    legend_y += 20;
+  }
+  for (const auto& b : options.bands) {
+    if (b.label.empty()) continue;
+    cv::Mat swatch = canvas(cv::Rect(area.x + 12, legend_y - 11, 28, 12));
+    cv::addWeighted(swatch, 1 - std::max(b.opacity, 0.35), cv::Mat(swatch.size(), swatch.type(), b.color),
+                    std::max(b.opacity, 0.35), 0, swatch);
+    cv::putText(canvas, b.label, {area.x + 48, legend_y}, font, 0.45, black, 1, cv::LINE_AA);
     legend_y += 20;
   }
   for (const auto& r : options.x_ranges) {

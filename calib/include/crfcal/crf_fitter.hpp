@@ -110,6 +110,9 @@ struct CrfFitOptions {
   int max_evaluations = 1000;  // per Nelder–Mead run / LM iterations × 10
   int min_pixels = 200;        // fewer usable pixels: the pair has no edges → InvalidInput
   int max_pixels = 0;          // deterministic subsample above this (0: all pixels)
+  // Optional CV_8U mask of the images' size: only pixels where it is non-zero may be used (the curve band's
+  // resampling of image blocks, curve_band.hpp). Empty: every pixel. Wrong size → InvalidInput.
+  cv::Mat pixel_selection;
   int threads = 0;             // 0: OpenCV's default
   std::function<void(double fraction, const std::string& stage)> progress;  // optional
 

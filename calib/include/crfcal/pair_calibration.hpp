@@ -17,6 +17,7 @@
 #include <opencv2/core.hpp>
 
 #include "crfcal/crf_fitter.hpp"
+#include "crfcal/curve_band.hpp"
 #include "crfcal/effects.hpp"
 #include "crfcal/kernel_estimation.hpp"
 #include "crfcal/registration.hpp"
@@ -61,6 +62,7 @@ struct PairCalibrationOptions {
   double small_blur_ratio_tolerance = 0.10;
   double min_covered_span = 0.5;     // intensity span covered by a channel's data below this: warn (extrapolation)
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
+  CurveBandOptions band;             // the pointwise band of φ per channel (curve_band.hpp); replicates = 0: none
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
   std::function<void(const std::string& stage, double fraction, const std::string& detail)> progress;
   void check() const;                // throws InvalidInput
@@ -95,6 +97,7 @@ struct PairCalibrationResult {
   std::map<std::string, double> timings; // seconds per stage
   std::vector<std::string> warnings;
   EffectReport effects;                  // named effects tested on the residuals (effects.hpp)
+  std::map<std::string, CurveBand> bands;  // per channel with a covered range (options.band; empty when off)
   std::map<std::string, CrfFitResult> base_fits;  // the fits before an effect's extended model replaced them
   std::string summary() const;
 };

@@ -27,6 +27,15 @@ struct PlotRange {
   std::string label;
 };
 
+// A shaded region between two curves sampled at the same x (e.g. a pointwise band of φ), drawn translucent under
+// the series, with a swatch in the legend when labelled.
+struct PlotBand {
+  std::vector<double> x, lower, upper;
+  cv::Scalar color{0, 0, 0};  // BGR
+  std::string label;
+  double opacity = 0.18;
+};
+
 struct PlotOptions {
   std::string title;
   std::string x_label = "x";
@@ -37,6 +46,7 @@ struct PlotOptions {
   double y_max = std::numeric_limits<double>::quiet_NaN();
   cv::Size size{720, 540};
   std::vector<PlotRange> x_ranges;  // drawn as bars stacked from the bottom of the plot area
+  std::vector<PlotBand> bands;      // shaded under the series
 };
 
 // A distinct colour for series i (a small qualitative palette).

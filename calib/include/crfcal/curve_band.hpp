@@ -1,0 +1,122 @@
+#pragma once
+// A pointwise band of the inverse response φ (issue 19: the curve beyond the data).
+//
+// Two kinds of uncertainty, kept apart because they behave differently:
+//  * the SHAPE inside the covered range (the intensities the pair's pixels constrain): the sampling error of the
+//    fit, measured by refitting φ on half-samples of image blocks (a block bootstrap; the blocks are larger than
+//    the kernel so that the pixels of one block share their noise, JPEG blocks and mixtures). For a half-sample
+//    Var(φ_half − φ_full) ≈ Var(φ_full) (m = n/2 of n blocks), so the replicates' deviations from the full fit,
+//    each after its best common scale over the covered range, estimate the full fit's pointwise variance directly.
+//    The band is ± t · σ (Student t with the replicates' degrees of freedom at the band's level), widened by the
+//    difference to the fitter's other candidate model (the model's own misfit, which resampling cannot see).
+//  * the SCALE and the curve above / below the data: with ΣK = 1, φ → bφ leaves Eq. 4 unchanged, so inside the
+//    covered range the data fix φ up to a factor, and φ(1) = 1 pins that factor only through the extrapolation
+//    from the top of the data x_hi to 1. The band assumes the true local exponent g = d log φ / d log x above the
+//    data lies in [g_lo, g_hi]: φ(x_hi) ∈ [x_hi^g_hi, x_hi^g_lo], which bounds the factor; above x_hi the curve lies
+//    in [x^g_hi, x^g_lo]. g_lo = max(exponent_floor, min(g_top, 1)) with g_top the fit's own exponent at the top of
+//    the data (a camera's inverse response rarely straightens above its data: measured inverse CRFs have local
+//    exponents ≥ 0.56 and shoulders that RISE towards x = 1, CrfFitOptions::min_local_exponent/shoulder_prior);
+//    g_hi = max(exponent_ceiling, exponent_rise_factor · g_top). Below the data likewise towards φ(0) = 0. This part is a bound, not a
+//    probability: it is honestly wide, and it is what makes the absolute band wide inside the covered range too
+//    when the data stop well below x = 1.
+// Pure computation: no file I/O, no printing.
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "crfcal/crf_fitter.hpp"
+
+namespace crfcal {
+
+struct CurveBandOptions {
+  double level = 0.9;      // pointwise coverage the band aims at (0.9: a 90 % band)
+  // Half-sample refits per channel (in complementary pairs, so even). Each sees half the blocks, so it costs about
+  // half a fit; 8 keep the band under the calibration's own time (docs/RESULTS.md#curve-band). 0: no band.
+  int replicates = 8;
+  // Side of the resampled blocks in pixels; the kernel's side doubled when that is larger (the pixels of one
+  // mixture must fall in one block).
+  int block_size = 32;
+  // Bounds of the local exponent of φ above (and below) the covered range, see the top of this file. Floor: half
+  // the most concave measured inverse CRF (CrfFitOptions::min_local_exponent's rationale); ceiling: a shoulder's
+  // exponent averaged over the extrapolated span (locally it reaches 4.5–19 on the ten Middlebury cameras, but only
+  // in the last few percent below x = 1).
+  double exponent_floor = 0.5;
+  double exponent_ceiling = 4.0;
+  // The upper exponent bound is also at least this times the fit's own exponent at the top of the data: a shoulder
+  // that already rises there keeps rising towards x = 1 (real shoulders steepen, shoulder_prior's rationale).
+  double exponent_rise_factor = 2.0;
+  // Add the fitter's other candidate model (GGCM vs EMoR, crf_model_selection), scale-aligned, as a model term of
+  // the shape half-width: √((t σ)² + (a φ_other − φ)²). The sampling spread misses the model's systematic misfit.
+  bool include_model_spread = true;
+  std::uint64_t seed = 1;  // the blocks' half-samples (deterministic)
+  void check() const;      // throws InvalidInput
+};
+
+struct CurveBand {
+  std::vector<double> lower, upper;       // the band of φ with φ(1) = 1 (absolute), kCurveSamples samples
+  // Half-width of the SHAPE band (sampling spread and the model term, φ's scale aligned), kCurveSamples samples; meaningful
+  // inside `covered`, where it is what two calibrations of one camera should agree within (compare).
+  std::vector<double> shape_half_width;
+  std::pair<double, double> covered{0, 1};  // the covered range the band was built for
+  std::pair<double, double> scale_range{1, 1};  // factors s with φ_true ≈ s·φ on the covered range
+  std::pair<double, double> exponent_above{1, 1};  // [g_lo, g_hi] used above the covered range
+  double level = 0.9;
+  int replicates = 0;         // successful refits
+  int failed_replicates = 0;  // refits that threw (too few pixels in the half-sample)
+  double seconds = 0;
+  bool empty() const { return lower.empty(); }
+  std::string summary() const;
+};
+
+// The band from a fit `phi` (kCurveSamples samples), the replicates' curves (half-sample refits, any number ≥ 2;
+// fewer: no sampling part) and the covered range. Throws InvalidInput for a malformed curve or range.
+// `alternatives`: other plausible fits of the same data (the fitter's other candidate model), each added as a
+// model term when options.include_model_spread.
+CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<std::vector<double>>& replicates,
+                             std::pair<double, double> covered, const CurveBandOptions& options = {},
+                             const std::vector<std::vector<double>>& alternatives = {});
+
+// Refits φ on `options.replicates` half-samples of the blocks that hold `fit`'s used pixels (fit.pixels.used_mask)
+// with the same images, kernel and fit options (CrfFitOptions::pixel_selection), then bandFromReplicates.
+CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
+                            const CrfFitOptions& fit_options, const CrfFitResult& fit,
+                            std::pair<double, double> covered, const CurveBandOptions& options = {});
+
+// How a band fares against a known truth (the benches): x samples of the truth inside the band, counted inside,
+// above and below the band's covered range; inside, also the SHAPE band: |a·truth − φ| ≤ shape_half_width with a
+// the truth's best common scale onto φ over the covered range (φ → bφ leaves Eq. 4 unchanged, so a shape band
+// is judged after that scale; the absolute band against the truth as it is).
+struct BandScore {
+  int inside = 0, inside_hits = 0;  // samples in the covered range, of which the truth inside [lower, upper]
+  int above = 0, above_hits = 0;    // above it
+  int below = 0, below_hits = 0;    // below it
+  int shape_hits = 0;               // covered-range samples with the scaled truth inside the shape band
+  double truth_scale = 1;           // a
+  double median_width_inside = 0;   // median of upper − lower over the covered range
+  double median_shape_width_inside = 0;  // median of 2 · shape_half_width over the covered range
+};
+BandScore scoreBand(const CurveBand& band, const std::vector<double>& phi, const std::vector<double>& truth);
+
+// Agreement of two curves judged by their bands (compare), over a common covered range [lo, hi] and with compare's
+// factor a (φ_A ≈ a·φ_B, curve_comparison.hpp): the shape bands give the difference d = φ_A − a·φ_B a pointwise
+// half-width w = √(h_A² + (a·h_B)²) at the bands' level, so two calibrations of one camera that differ only by
+// their sampling errors have |d| ≤ w at about `level` of the samples, and (d / σ)² averages about 1 with
+// σ = w / z_level. A missing band counts as half-width 0 (a truth, or a report without a band).
+struct BandAgreement {
+  int samples = 0;               // grid samples in the common covered range
+  double fraction_within = 0;    // of them, |d| ≤ w
+  double mean_z2 = 0;            // mean of (d / σ)²; ≫ 1: the curves differ beyond their sampling errors
+  double fraction_absolute_overlap = 0;  // of them, the absolute bands [lower, upper] overlap (no factor a)
+  double level = 0.9;
+};
+// phi_a/phi_b and the bands on the same grid (same sample count); band_a/band_b may be null.
+BandAgreement bandAgreement(const std::vector<double>& phi_a, const CurveBand* band_a, const std::vector<double>& phi_b,
+                            const CurveBand* band_b, std::pair<double, double> covered, double scale);
+
+// Quantile of Student's t with `dof` degrees of freedom at probability p ∈ (0.5, 1) (dof ≤ 0: the normal one).
+double studentQuantile(double p, double dof);
+
+}  // namespace crfcal

@@ -1,0 +1,24 @@
+#pragma once
+// The band of φ in report.json (curve_band.hpp), kept apart from the report writer so that commands reading a
+// report (compare, export) find it in one place:
+//   "inverse_crf_band": {"G": {"lower": [1024], "upper": [1024], "shape_half_width": [1024], "level": 0.9,
+//                              "replicates": n, "failed_replicates": n, "scale_range": [s_lo, s_hi],
+//                              "exponent_above": [g_lo, g_hi], "covered": [x_lo, x_hi], "method": "..."}, …}
+// The covered range itself is report.json's "covered_range" (report.hpp); "covered" repeats the range the band
+// was built on. Reports without a band (older ones, chart, simulate's truth) read as none.
+#include <map>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "crfcal/curve_band.hpp"
+#include "crfcal/io/report.hpp"
+
+namespace crfcal::io {
+
+nlohmann::json curveBandsJson(const std::map<std::string, CurveBand>& bands);
+// The bands of a report (its "inverse_crf_band"); empty when it has none. Throws crfcal::Error naming `source` for
+// a malformed band (limits of another length than the channel's curve).
+std::map<std::string, CurveBand> readCurveBands(const CalibrationReport& report, const std::string& source = {});
+
+}  // namespace crfcal::io

@@ -1,0 +1,209 @@
+// The pointwise band of φ (curve_band.hpp): its coverage, the report's keys, compare's band statistic and export's
+// --band option.
+#include <cmath>
+#include <fstream>
+#include <random>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "crfcal/curve_band.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/io/band_report.hpp"
+#include "crfcal/io/report.hpp"
+#include "crfcal/response_model.hpp"
+#include "crfcal/simulation.hpp"
+#include "test_support.hpp"
+
+namespace crfcal {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::vector<double> gammaCurve(double gamma, int n = kCurveSamples) {
+  std::vector<double> v(n);
+  for (int i = 0; i < n; ++i) v[i] = std::pow(double(i) / (n - 1), gamma);
+  return v;
+}
+
+// A smooth random error of the estimator: a few low-frequency sines of standard deviation `sigma` each.
+std::vector<double> smoothError(std::mt19937_64& rng, double sigma, int n = kCurveSamples) {
+  std::normal_distribution<double> normal(0, sigma);
+  std::vector<double> e(n, 0.0);
+  for (int k = 1; k <= 3; ++k) {
+    const double a = normal(rng);
+    for (int i = 0; i < n; ++i) e[i] += a * std::sin(k * M_PI * double(i) / (n - 1)) / std::sqrt(3.0);
+  }
+  return e;
+}
+
+// Coverage of the shape band when the estimator's error and the half-samples' deviations have the spread the band
+// assumes: about the nominal 90 %; when the replicates understate the spread threefold, far below it (the test
+// can fail).
+double shapeCoverage(double replicate_spread_factor) {
+  std::mt19937_64 rng(7);
+  const std::vector<double> truth = gammaCurve(2.2);
+  CurveBandOptions options;
+  options.include_model_spread = false;
+  int hits = 0, samples = 0;
+  for (int trial = 0; trial < 200; ++trial) {
+    std::vector<double> fit = truth;
+    const auto error = smoothError(rng, 0.004);
+    for (int i = 0; i < kCurveSamples; ++i) fit[i] += error[i];
+    std::vector<std::vector<double>> replicates;
+    for (int r = 0; r < 8; ++r) {  // Var(half − full) = Var(full) for half-samples
+      auto rep = fit;
+      const auto e = smoothError(rng, 0.004 * replicate_spread_factor);
+      for (int i = 0; i < kCurveSamples; ++i) rep[i] += e[i];
+      replicates.push_back(rep);
+    }
+    const CurveBand band = bandFromReplicates(fit, replicates, {0.1, 0.9}, options);
+    const BandScore score = scoreBand(band, fit, truth);
+    hits += score.shape_hits;
+    samples += score.inside;
+  }
+  return double(hits) / samples;
+}
+
+TEST(CurveBand, ShapeBandCoversAtTheNominalRateAndFailsWhenTheSpreadIsUnderstated) {
+  const double nominal = shapeCoverage(1.0);
+  EXPECT_GT(nominal, 0.84);
+  EXPECT_LT(nominal, 0.97);
+  EXPECT_LT(shapeCoverage(1.0 / 3), 0.6);
+}
+
+TEST(CurveBand, AboveTheDataTheBandBoundsTheExponentAndHoldsTheFit) {
+  const std::vector<double> phi = gammaCurve(2.2);
+  const CurveBand band = bandFromReplicates(phi, {}, {0.05, 0.6});
+  ASSERT_EQ(band.lower.size(), 1024u);
+  for (int i = 0; i < 1024; ++i) {
+    EXPECT_LE(band.lower[i], phi[i] + 1e-12) << i;
+    EXPECT_GE(band.upper[i], phi[i] - 1e-12) << i;
+    if (i > 0) EXPECT_GE(band.lower[i], band.lower[i - 1]) << i;
+  }
+  EXPECT_EQ(band.lower[1023], 1.0);
+  // x = 0.8 above the data: between x^g_hi and x^g_lo, with g_lo = 1 (straightening) and g_hi = 4.4 (2 × 2.2).
+  const int i = 818;
+  const double x = i / 1023.0;
+  EXPECT_NEAR(band.upper[i], x, 0.02);
+  EXPECT_NEAR(band.lower[i], std::pow(x, 4.4), 0.02);
+  // The scale inside the covered range: the truth may be anywhere between those extrapolations.
+  EXPECT_LT(band.scale_range.first, 1.0);
+  EXPECT_GT(band.scale_range.second, 1.0);
+  // A curve with data up to x = 1 has no scale freedom.
+  EXPECT_EQ(bandFromReplicates(phi, {}, {0.05, 1.0}).scale_range.second, 1.0);
+  EXPECT_THROW(bandFromReplicates(phi, {}, {0.7, 0.6}), InvalidInput);
+  CurveBandOptions odd;
+  odd.replicates = 3;
+  EXPECT_THROW(odd.check(), InvalidInput);
+}
+
+// The whole estimate on a small noisy synthetic pair whose data stop at x ≈ 0.58: the truth lies inside the band
+// at about the nominal rate or more (the part above the data is a bound), and the band is not the trivial [0, 1].
+TEST(CurveBand, SyntheticPairBandContainsTheTruth) {
+  const GammaModel truth_model{2.2};
+  cv::Mat image = test::levinImage(2) * 0.3;  // irradiance up to 0.3: intensities up to 0.3^(1/2.2) ≈ 0.58
+  SimulationOptions sim;
+  sim.noise_variance = 0.0005;
+  const SimulationResult pair = simulatePair(image, truth_model, test::levinKernel(3), sim);
+  CrfFitOptions fit_options;
+  const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(3), fit_options);
+  const std::pair<double, double> covered{fit.covered_levels.first / double(fit.levels - 1),
+                                          fit.covered_levels.second / double(fit.levels - 1)};
+  ASSERT_LT(covered.second, 0.7);
+  CurveBandOptions options;
+  options.replicates = 6;
+  const CurveBand band = estimateCurveBand(pair.sharp, pair.blurred, test::levinKernel(3), fit_options, fit, covered,
+                                           options);
+  EXPECT_EQ(band.replicates + band.failed_replicates, 6);
+  const BandScore score = scoreBand(band, fit.inverse_crf, sampleInverse(truth_model));
+  EXPECT_GE(double(score.inside_hits) / score.inside, 0.85) << band.summary();
+  EXPECT_GE(double(score.above_hits) / score.above, 0.85) << band.summary();
+  EXPECT_LT(score.median_width_inside, 0.3) << band.summary();
+}
+
+io::CalibrationReport reportWithBand(double gamma, double half_width) {
+  io::CalibrationReport report;
+  report.command = "calibrate";
+  report.inverse_crf["G"] = gammaCurve(gamma);
+  report.covered_range["G"] = {0.1, 0.9};
+  CurveBand band = bandFromReplicates(report.inverse_crf["G"], {}, {0.1, 0.9});
+  band.shape_half_width.assign(kCurveSamples, half_width);
+  report.extra["inverse_crf_band"] = io::curveBandsJson({{"G", band}});
+  return report;
+}
+
+TEST(CurveBand, BandAgreementStatistic) {
+  const auto a = reportWithBand(2.2, 0.01), b = reportWithBand(2.2, 0.01), c = reportWithBand(1.8, 0.01);
+  const auto bands_a = io::readCurveBands(a), bands_c = io::readCurveBands(c);
+  ASSERT_EQ(bands_a.count("G"), 1u);
+  const BandAgreement same =
+      bandAgreement(a.inverse_crf.at("G"), &bands_a.at("G"), b.inverse_crf.at("G"), &bands_a.at("G"), {0.1, 0.9}, 1);
+  EXPECT_EQ(same.fraction_within, 1.0);
+  EXPECT_NEAR(same.mean_z2, 0.0, 1e-12);
+  EXPECT_GT(same.samples, 800);
+  const BandAgreement differ =
+      bandAgreement(a.inverse_crf.at("G"), &bands_a.at("G"), c.inverse_crf.at("G"), &bands_c.at("G"), {0.1, 0.9}, 1);
+  EXPECT_LT(differ.fraction_within, 0.3);
+  EXPECT_GT(differ.mean_z2, 10.0);
+}
+
+TEST(CurveBand, CompareAndExportUseTheBand) {
+  test::TempDir dir;
+  io::writeReport(dir / "a.json", reportWithBand(2.2, 0.01));
+  io::writeReport(dir / "b.json", reportWithBand(2.0, 0.01));
+  const std::string bin = test::crfcalBinary().string();
+  auto r = test::run(bin + " compare " + (dir / "a.json").string() + " " + (dir / "b.json").string() + " -o " +
+                     (dir / "cmp").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("within the combined 90 % band"), std::string::npos) << r.output;
+  std::ifstream in(dir / "cmp" / "compare.json");
+  const auto json = nlohmann::json::parse(in);
+  const auto& g = json["channels"][0]["band_agreement"];
+  EXPECT_GE(g["fraction_within"].get<double>(), 0.0);
+  EXPECT_LE(g["fraction_within"].get<double>(), 1.0);
+  EXPECT_GT(g["mean_z2"].get<double>(), 0.0);
+
+  r = test::run(bin + " export " + (dir / "a.json").string() + " --band upper -o " + (dir / "upper.csv").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = test::run(bin + " export " + (dir / "a.json").string() + " -o " + (dir / "curve.csv").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream upper(dir / "upper.csv"), curve(dir / "curve.csv");
+  const std::string upper_text((std::istreambuf_iterator<char>(upper)), {}), curve_text((std::istreambuf_iterator<char>(curve)), {});
+  EXPECT_NE(upper_text, curve_text);
+  // A report without a band: one line naming it, non-zero exit, nothing written.
+  io::CalibrationReport plain = reportWithBand(2.2, 0.01);
+  plain.extra.erase("inverse_crf_band");
+  io::writeReport(dir / "plain.json", plain);
+  r = test::run(bin + " export " + (dir / "plain.json").string() + " --band lower -o " + (dir / "x.csv").string());
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("no band"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "x.csv"));
+}
+
+// calibrate writes the band: "inverse_crf_band" with 1024-sample limits per channel and the covered range.
+TEST(CurveBand, CalibrateReportHasTheBand) {
+  const fs::path pair = test::samples() / "pairs";
+  ASSERT_TRUE(fs::exists(pair / "sharp.jpg"));
+  test::TempDir dir;
+  const auto r = test::run(test::crfcalBinary().string() + " calibrate -q " + (pair / "sharp.jpg").string() + " " +
+                           (pair / "blurred.jpg").string() + " --channels g --rounds 0 --no-effects --band-replicates 4 "
+                           "--kernel " + (test::samples() / "levin09" / "kernel03.txt").string() + " -o " +
+                           (dir / "out").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream in(dir / "out" / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  ASSERT_TRUE(report.contains("inverse_crf_band")) << report.dump().substr(0, 400);
+  const auto& g = report["inverse_crf_band"]["G"];
+  EXPECT_EQ(g["lower"].size(), 1024u);
+  EXPECT_EQ(g["upper"].size(), 1024u);
+  EXPECT_EQ(g["replicates"].get<int>() + g["failed_replicates"].get<int>(), 4);
+  ASSERT_TRUE(report["covered_range"].contains("G"));
+  for (size_t i = 0; i < 1024; ++i) {
+    EXPECT_LE(g["lower"][i].get<double>(), report["inverse_crf"]["G"][i].get<double>() + 1e-12);
+    EXPECT_GE(g["upper"][i].get<double>(), report["inverse_crf"]["G"][i].get<double>() - 1e-12);
+  }
+}
+
+}  // namespace
+}  // namespace crfcal
