@@ -22,6 +22,7 @@ void PairCalibrationOptions::check() const {
   if (!(irradiance_kernel_lambda >= 0)) throw InvalidInput("irradiance_kernel_lambda must be >= 0");
   if (!(small_blur_ratio_tolerance >= 0)) throw InvalidInput("small_blur_ratio_tolerance must be >= 0");
   effects.check();
+  verdict.check();
 }
 
 std::string PairCalibrationResult::summary() const {

@@ -171,6 +171,18 @@ json rawTruthJson(const RawTruthReport& truth) {
   return out;
 }
 
+// The verdict per channel (channel_verdict.hpp): "verdict", "verdict_reasons" and the flat regions' brightness
+// ratio it compared r with.
+void addVerdict(const PairCalibrationResult& result, json& extra) {
+  extra["verdict"] = json::object();
+  extra["verdict_reasons"] = json::object();
+  for (const auto& [name, verdict] : result.verdicts) {
+    extra["verdict"][name] = toString(verdict.level);
+    extra["verdict_reasons"][name] = verdict.reasons;
+  }
+  extra["brightness_ratio"] = result.brightness_ratio;
+}
+
 }  // namespace
 
 json curveComparisonJson(const CurveComparison& comparison) {
@@ -223,6 +235,7 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
                                 result.effects.refit_rejected_reason + "); the base fit's phi is reported");
   }
   addFitDetails(result, extra);
+  addVerdict(result, extra);
   if (context.raw_truth) {
     if (context.raw_truth->compared_on_full_range_only)
       report.warnings.push_back("raw truth: the pair and the RAW truth cover disjoint intensity ranges; compared "
