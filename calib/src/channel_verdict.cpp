@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "crfcal/emor.hpp"
 #include "crfcal/error.hpp"
 
 // The verdict rules of channel_verdict.hpp. Each rule adds its sentence with the level it implies; the channel's
@@ -29,6 +30,7 @@ void VerdictOptions::check() const {
   if (!(min_covered_span >= 0 && min_covered_span <= 1)) throw InvalidInput("verdict: min_covered_span in [0, 1]");
   if (!(flat_local_exponent >= 0)) throw InvalidInput("verdict: flat_local_exponent must be >= 0");
   if (!(max_flat_fraction > 0 && max_flat_fraction <= 1)) throw InvalidInput("verdict: max_flat_fraction in (0, 1]");
+  if (!(flat_slope_fraction >= 0 && flat_slope_fraction < 1)) throw InvalidInput("verdict: flat_slope_fraction in [0, 1)");
 }
 
 std::string ChannelVerdict::summary() const {
@@ -134,11 +136,12 @@ void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
                                       "extrapolated",
                                       lo, hi, o.min_covered_span));
   if (e.inverse_crf.size() < 2) return;
-  const double flat = flatFraction(e.inverse_crf, *e.covered, o.flat_local_exponent);
+  const double flat = flatFraction(e.inverse_crf, *e.covered, o);
   if (flat >= o.max_flat_fraction)
     j.find(VerdictLevel::unreliable,
-           format("phi is flat (local exponent < %.2g) over %.0f %% of the covered range %.2f-%.2f", o.flat_local_exponent,
-                  100 * flat, lo, hi));
+           format("phi is nearly constant over %.0f %% of the covered range %.2f-%.2f (local exponent < %.2g or a rise "
+                  "under a tenth of any real curve's)",
+                  100 * flat, lo, hi, o.flat_local_exponent));
 }
 
 // Channels whose r leaves the band around the channels' median r.
@@ -191,10 +194,18 @@ std::string passedNote(const ChannelEvidence& e, const VerdictOptions& o) {
 
 }  // namespace
 
-double flatFraction(const std::vector<double>& phi, std::pair<double, double> covered, double flat_local_exponent) {
+double flatFraction(const std::vector<double>& phi, std::pair<double, double> covered, const VerdictOptions& o) {
   const double hi = std::min(covered.second, 1.0);
   const double lo = std::max(covered.first, 1.0 / double(phi.size() - 1));  // log x needs x > 0
   if (!(hi > lo) || phi.size() < 2) return 0;
+  const std::vector<double> g0(emor::inverseMean().begin(), emor::inverseMean().end());
+  // The smallest rise of g0^k over [a, b] for k in [k_min, k_max] (monotone in k at each end: check both ends).
+  auto realRise = [&](double a, double b) {
+    double rise = 1;
+    for (const double k : {o.brightness_ratio_exponent_min, o.brightness_ratio_exponent_max})
+      rise = std::min(rise, std::pow(sampleAt(g0, b), k) - std::pow(sampleAt(g0, a), k));
+    return rise;
+  };
   constexpr int intervals = 32;
   const double step = (hi - lo) / intervals;
   int flat = 0;
@@ -206,7 +217,7 @@ double flatFraction(const std::vector<double>& phi, std::pair<double, double> co
       continue;
     }
     const double exponent = (std::log(fb) - std::log(fa)) / (std::log(b) - std::log(a));
-    flat += exponent < flat_local_exponent;
+    flat += exponent < o.flat_local_exponent || fb - fa < o.flat_slope_fraction * realRise(a, b);
   }
   return double(flat) / intervals;
 }

@@ -57,6 +57,12 @@ struct VerdictOptions {
   // ≥ 0.56 (the ten Middlebury cameras) and the fitter bounds them at 0.25 (min_local_exponent); 0.1 is far below
   // both: only a degenerate curve goes there.
   double flat_local_exponent = 0.1;
+  // φ also counts as flat where it rises less than this fraction of what any real curve rises there: the smallest
+  // rise of g0^k over the sub-interval for k in [brightness_ratio_exponent_min, _max] (the EMoR mean and the most
+  // convex measured camera). A tenth: an order of magnitude, beyond the scale error of φ(1) = 1 extrapolated from
+  // data that stop early. It catches a curve nearly 0 over the data with all its rise above them (a steep power law
+  // has a large local exponent, so the rule above misses it).
+  double flat_slope_fraction = 0.1;
   // Fraction of the covered span over which a flat φ makes the channel unreliable (a tenth: more than a local dip).
   double max_flat_fraction = 0.1;
   void check() const;  // throws InvalidInput
@@ -99,8 +105,10 @@ std::map<std::string, ChannelVerdict> judgeChannels(const std::vector<ChannelEvi
 // Worst level over the channels (ok for none).
 VerdictLevel worstLevel(const std::map<std::string, ChannelVerdict>& verdicts);
 
-// Fraction of the covered range [lo, hi] over which φ (samples on [0, 1]) is flat: local exponent between nodes
-// 1/64 apart below `flat_local_exponent`, or φ ≤ 0 at the lower node.
-double flatFraction(const std::vector<double>& inverse_crf, std::pair<double, double> covered, double flat_local_exponent);
+// Fraction of the covered range [lo, hi] over which φ (samples on [0, 1]) is flat: on each of 32 equal
+// sub-intervals, φ ≤ 0, a local exponent below options.flat_local_exponent, or a rise below
+// options.flat_slope_fraction of the smallest rise of the real-curve family g0^k there.
+double flatFraction(const std::vector<double>& inverse_crf, std::pair<double, double> covered,
+                    const VerdictOptions& options = {});
 
 }  // namespace crfcal
