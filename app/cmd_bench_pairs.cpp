@@ -298,6 +298,31 @@ struct CaseScores {
   ChannelComparison shape;
   std::optional<BandScore> band;  // the G band against the truth (when a band was estimated)
   double band_seconds = 0;
+  std::string verdict;  // G's verdict (channel_verdict.hpp)
+};
+
+// The G verdict against the truth: how often "ok" is given, and how often it is wrong either way. Accurate = r
+// within 5 % and shape RMSE over the covered range ≤ 0.01 (issue 17's targets).
+struct VerdictCounts {
+  int judged = 0, ok = 0, weak = 0, unreliable = 0;
+  int false_ok = 0;     // "ok" but not accurate
+  int false_alarm = 0;  // not "ok" although accurate
+  void add(const std::string& verdict, bool accurate) {
+    ++judged;
+    ok += verdict == "ok";
+    weak += verdict == "weak";
+    unreliable += verdict == "unreliable";
+    false_ok += verdict == "ok" && !accurate;
+    false_alarm += verdict != "ok" && accurate;
+  }
+  std::string line() const {
+    char text[400];
+    std::snprintf(text, sizeof text,
+                  "verdict of G: ok %d, weak %d, unreliable %d of %d; ok but r off > 5 %% or shape RMSE > 0.01 "
+                  "(false ok): %d; not ok although r within 5 %% and shape <= 0.01 (false alarm): %d\n",
+                  ok, weak, unreliable, judged, false_ok, false_alarm);
+    return text;
+  }
 };
 
 // A run of `bench pairs`: the cases in order, their rows of results.md and results.json, the totals.
@@ -312,6 +337,7 @@ struct PairsRun {
   nlohmann::json results = nlohmann::json::array();
   std::ostringstream table;
   int index = 0, done = 0;
+  VerdictCounts verdicts;
   double sum_rmse = 0, sum_base = 0, sum_r = 0, sum_k = 0, worst_r = 0, worst_rmse = 0;
 
   PairsRun(const PairsArgs& a, io::OutputDirectory& o, const std::optional<io::CameraNoiseProfile>& camera,
@@ -409,6 +435,11 @@ struct PairsRun {
                        {"scale_range", {band.scale_range.first, band.scale_range.second}},
                        {"seconds", band.seconds}, {"summary", band.summary()}};
     }
+    if (r.verdicts.count("G")) {
+      s.verdict = toString(r.verdicts.at("G").level);
+      row.update({{"verdict_G", s.verdict}, {"verdict_reasons_G", r.verdicts.at("G").reasons}});
+    }
+    if (r.brightness_ratio.count("G")) row["brightness_ratio_G"] = r.brightness_ratio.at("G");
     return s;
   }
 
@@ -453,6 +484,7 @@ struct PairsRun {
       b.band_seconds += s.band_seconds;
       b.seconds += s.seconds;
     }
+    if (!s.verdict.empty()) verdicts.add(s.verdict, r_error <= 0.05 && shape <= 0.01);
     sum_rmse += s.rmse;
     sum_base += s.base;
     sum_r += r_error;
@@ -505,6 +537,7 @@ struct PairsRun {
                     "%.4f (worst %.4f), mean kernel shape error %.3f over %d of %d cases\n",
                     sum_rmse / done, worst_rmse, sum_base / done, sum_r / done, worst_r, sum_k / done, done, index);
       table << line;
+      table << verdicts.line();
     }
     if (any_real && !args.pairs_only) table << ratioSummaryTable(by_ratio);
     if (!band_by_ratio.empty()) table << bandSummaryTable(band_by_ratio);

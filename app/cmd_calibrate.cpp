@@ -52,6 +52,7 @@ struct CalibrateArgs {
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;  // σ of log r around EXIF/--ratio
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.experimental.noise);
   bool quiet = false;
+  bool strict = false;              // exit kExitUnreliable when a channel's verdict is "unreliable"
   std::string raw_truth;            // RAW (or linear image) of one of the two shots
   std::string raw_truth_of = "auto";  // which shot it is: auto (EXIF), sharp, blurred
   bool force = false;               // write into an output directory holding other files (never deletes them)
@@ -195,6 +196,7 @@ PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nomi
   options.band.replicates = args.band_replicates;
   options.register_pair = !args.no_register;
   options.fit.nominal_ratio = nominal_ratio;
+  options.nominal_ratio_name = args.ratio > 0 ? "--ratio" : "EXIF";
   options.fit.fit_ratio = !args.fix_ratio;
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
   options.effects.enabled = !args.no_effects;
@@ -278,6 +280,25 @@ void printCalibration(const CalibrateArgs& args, double nominal_ratio, const Pai
               args.output.c_str());
 }
 
+// The verdict per channel, last (channel_verdict.hpp): one line each, R, G, B order.
+void printVerdicts(const PairCalibrationResult& result) {
+  for (const char* c : {"R", "G", "B"})
+    if (result.verdicts.count(c)) std::printf("verdict %s: %s\n", c, result.verdicts.at(c).summary().c_str());
+}
+
+// --strict: kExitUnreliable when a channel is unreliable (the outputs are written; the message says which and why).
+int strictExitCode(const CalibrateArgs& args, const PairCalibrationResult& result) {
+  if (!args.strict || worstLevel(result.verdicts) != VerdictLevel::unreliable) return kExitOk;
+  std::string channels;
+  for (const auto& [name, verdict] : result.verdicts)
+    if (verdict.level == VerdictLevel::unreliable) channels += (channels.empty() ? "" : ", ") + name;
+  std::fflush(stdout);  // the verdict lines first
+  std::fprintf(stderr, "crfcal: --strict: channel %s unreliable (see the verdict above and report.json "
+               "verdict_reasons); outputs written to %s; exit %d\n",
+               channels.c_str(), args.output.c_str(), kExitUnreliable);
+  return kExitUnreliable;
+}
+
 int runCalibrate(const CalibrateArgs& args) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
@@ -342,7 +363,8 @@ int runCalibrate(const CalibrateArgs& args) {
   progress.done();
 
   printCalibration(args, nominal_ratio, options, result, report, truth, truth_report);
-  return kExitOk;
+  printVerdicts(result);
+  return strictExitCode(args, result);
 }
 
 const CommandRegistration registration(
@@ -416,6 +438,9 @@ const CommandRegistration registration(
                          "Which shot the --raw-truth file is: auto (same exposure in EXIF, else sharp), sharp, blurred")
           ->check(CLI::IsMember({"auto", "sharp", "blurred"}))
           ->needs(raw_truth);
+      command.add_flag("--strict", args->strict,
+                       "Exit with code 4 when any channel's verdict is \"unreliable\" (the outputs are still written; "
+                       "report.json verdict_reasons says why)");
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runCalibrate(*args); };
     });

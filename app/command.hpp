@@ -19,6 +19,7 @@ inline constexpr int kExitOk = 0;
 inline constexpr int kExitError = 1;      // bad input or a failed computation (one line on stderr)
 inline constexpr int kExitUsage = 2;      // command-line syntax (CLI11's own)
 inline constexpr int kExitTolerance = 3;  // a --tolerance check failed (compare)
+inline constexpr int kExitUnreliable = 4; // calibrate --strict: a channel's verdict is "unreliable" (outputs written)
 
 // --force, the same in every command that writes an output directory or file (io::OutputDirectory, io/output_guard.hpp).
 inline constexpr const char* kForceHelp =

@@ -23,6 +23,7 @@ void PairCalibrationOptions::check() const {
   if (!(small_blur_ratio_tolerance >= 0)) throw InvalidInput("small_blur_ratio_tolerance must be >= 0");
   effects.check();
   band.check();
+  verdict.check();
 }
 
 std::string PairCalibrationResult::summary() const {

@@ -1,6 +1,7 @@
 // Stage "verdict" of calibratePair: the diagnostic maps on G (the blur inconsistency Γ of Sec. 3, the fit's
-// weights) and the warnings a user acts on — a small blur (r weakly determined or held), kernels that disagree
-// across the frame, few edge pixels, an underexposed sharp shot, data that cover only part of the intensities.
+// weights), the warnings a user acts on — a small blur (r weakly determined or held), kernels that disagree
+// across the frame, few edge pixels, an underexposed sharp shot, data that cover only part of the intensities — and
+// the verdict per channel (channel_verdict.hpp), with the shots' brightness ratio it needs.
 #include <algorithm>
 #include <cstdio>
 #include <string>
@@ -10,7 +11,11 @@
 #include <opencv2/imgproc.hpp>
 
 #include "crfcal/blur_model.hpp"
+#include "crfcal/channel_verdict.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/exposure_fit.hpp"
 #include "crfcal/kernel.hpp"
+#include "crfcal/response_curve.hpp"
 #include "image_units.hpp"
 #include "pair_stages.hpp"
 
@@ -108,12 +113,72 @@ void channelWarnings(PairCalibrationState& state, const std::string& name, const
   }
 }
 
+// The brightness ratio of the two shots in channel `name`: the measurement of `crfcal study ratio`
+// (estimateExposureRatio by quantile matching with the EMoR mean curve), independent of the fit. Quantiles, not
+// per-pixel ratios: the blur moves pixels but keeps the brightness distribution's bulk, and the per-pixel ratio of
+// a noisy I needs a selection on I that biases it (measured on `bench pairs --ratio 8`: per-pixel ratios of flat
+// pixels 0.25 in log from the value the camera curves imply, quantiles 0.15). Only the pixels both shots cover.
+// 0 when too few usable levels.
+double brightnessRatio(const PairCalibrationState& state, const std::string& name) {
+  const cv::Mat sharp = unit(state.window_sharp.at(name)), blurred = unit(state.window_blurred.at(name));
+  const cv::Mat overlap = state.overlap(state.result.fit_window);
+  std::vector<double> sharp_values, blurred_values;
+  for (int y = 0; y < sharp.rows; ++y)
+    for (int x = 0; x < sharp.cols; ++x)
+      if (overlap.at<uchar>(y, x)) {
+        sharp_values.push_back(sharp.at<double>(y, x));
+        blurred_values.push_back(blurred.at<double>(y, x));
+      }
+  if (sharp_values.size() < 1000) return 0;
+  ExposureRatioOptions options;
+  options.registered = false;
+  try {
+    return estimateExposureRatio(cv::Mat(sharp_values).t(), cv::Mat(blurred_values).t(), ResponseCurve(EmorModel{{0.0}}),
+                                 options)
+        .ratio;
+  } catch (const InvalidInput&) {
+    return 0;
+  }
+}
+
+// The verdict per channel from the final fits, the flat regions, the covered ranges and the refit guard.
+void judgeChannelsOfPair(PairCalibrationState& state) {
+  PairCalibrationResult& result = state.result;
+  const PairCalibrationOptions& options = state.options;
+  std::vector<ChannelEvidence> evidence;
+  for (const auto& name : result.channels) {
+    if (!result.fits.count(name)) continue;
+    const CrfFitResult& fit = result.fits.at(name);
+    ChannelEvidence e;
+    e.channel = name;
+    e.ratio = fit.ratio;
+    e.nominal_ratio = state.fit_options.nominal_ratio;
+    e.nominal_source = options.nominal_ratio_name;
+    e.ratio_fixed = !options.fit.fit_ratio;
+    e.ratio_held_small_blur = result.ratio_fixed_by_small_blur;
+    e.ratio_images_small_blur = result.ratio_images_small_blur;
+    const double brightness = brightnessRatio(state, name);
+    if (brightness > 0) result.brightness_ratio[name] = e.brightness_ratio = brightness;
+    if (result.covered_range.count(name)) e.covered = result.covered_range.at(name);
+    e.inverse_crf = fit.inverse_crf;
+    evidence.push_back(e);
+  }
+  RefitEvidence refit;
+  refit.tried = result.effects.refit_tried;
+  refit.adopted = result.effects.refit_adopted;
+  refit.rejected_reason = result.effects.refit_rejected_reason;
+  refit.heldout_error_base_fit = result.effects.heldout_error_base_fit;
+  refit.heldout_error_refit = result.effects.heldout_error_refit;
+  result.verdicts = judgeChannels(evidence, refit, options.verdict);
+}
+
 }  // namespace
 
 void computeVerdict(PairCalibrationState& state) {
   diagnosticMaps(state);
   blurWarnings(state);
   for (const auto& [name, fit] : state.result.fits) channelWarnings(state, name, fit);
+  judgeChannelsOfPair(state);
 }
 
 }  // namespace crfcal::detail

@@ -20,6 +20,12 @@ cv::Scalar channelColour(const std::string& c) {
   return c == "R" ? cv::Scalar(40, 40, 220) : c == "G" ? cv::Scalar(40, 160, 40) : cv::Scalar(220, 80, 40);
 }
 
+// The legend entry of a channel's curve: "phi G - verdict: weak" (channel_verdict.hpp; reasons in report.json).
+std::string curveLabel(const PairCalibrationResult& result, const std::string& c) {
+  const auto verdict = result.verdicts.find(c);
+  return "phi " + c + (verdict == result.verdicts.end() ? "" : std::string(" - verdict: ") + toString(verdict->second.level));
+}
+
 // φ per channel: a thick line over the intensities the data cover, a thin one where it is extrapolated, the
 // covered ranges as bars along the bottom, the pointwise band shaded (curve_band.hpp); the RAW truth dashed.
 void writeCurveFigure(const std::filesystem::path& path, const CalibrationFigureInputs& in) {
@@ -37,7 +43,7 @@ void writeCurveFigure(const std::filesystem::path& path, const CalibrationFigure
                             number("%.0f", 100 * band->second.level) + " % band " + c + " (shaded)"});
     const auto covered = in.result.covered_range.find(c);
     if (covered == in.result.covered_range.end()) {
-      series.push_back({x, phi, channelColour(c), std::string("phi ") + c});
+      series.push_back({x, phi, channelColour(c), curveLabel(in.result, c)});
     } else {
       const auto [lo, hi] = covered->second;
       // three pieces sharing their end samples so that they join: below, inside, above the covered range
@@ -49,7 +55,7 @@ void writeCurveFigure(const std::filesystem::path& path, const CalibrationFigure
       };
       piece(0, lo, "", 1);
       piece(hi, 1, "", 1);
-      piece(lo, hi, std::string("phi ") + c, 2);
+      piece(lo, hi, curveLabel(in.result, c), 2);
       plot.x_ranges.push_back({lo, hi, channelColour(c),
                                std::string("data ") + c + " (bar under the axis): x " + number("%.2f", lo) + " - " + number("%.2f", hi)});
       extrapolated = extrapolated || lo > 0 || hi < 1;

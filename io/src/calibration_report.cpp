@@ -179,6 +179,18 @@ void addCurveBands(const PairCalibrationResult& result, json& extra) {
   extra["inverse_crf_band"] = curveBandsJson(result.bands);
 }
 
+// The verdict per channel (channel_verdict.hpp): "verdict", "verdict_reasons" and the flat regions' brightness
+// ratio it compared r with.
+void addVerdict(const PairCalibrationResult& result, json& extra) {
+  extra["verdict"] = json::object();
+  extra["verdict_reasons"] = json::object();
+  for (const auto& [name, verdict] : result.verdicts) {
+    extra["verdict"][name] = toString(verdict.level);
+    extra["verdict_reasons"][name] = verdict.reasons;
+  }
+  extra["brightness_ratio"] = result.brightness_ratio;
+}
+
 }  // namespace
 
 json curveComparisonJson(const CurveComparison& comparison) {
@@ -232,6 +244,7 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
   }
   addFitDetails(result, extra);
   addCurveBands(result, extra);
+  addVerdict(result, extra);
   if (context.raw_truth) {
     if (context.raw_truth->compared_on_full_range_only)
       report.warnings.push_back("raw truth: the pair and the RAW truth cover disjoint intensity ranges; compared "

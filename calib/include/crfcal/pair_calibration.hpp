@@ -7,7 +7,7 @@
 //   exposure and tone difference), kernel-aware registration refinement (ECC of I ⊗ K against B) and the kernel
 //   again → fit window → φ fit per channel (crf_fitter.hpp, Eq. 21–25) and `rounds` × { kernel re-estimated in the
 //   irradiance domain φ(I), φ(B) with the current φ_G; φ refitted } with the change per round reported → effects
-//   (effects.hpp) → verdict (Γ map, warnings, covered range).
+//   (effects.hpp) → verdict (Γ map, warnings, covered range, the verdict per channel: channel_verdict.hpp).
 // Pure computation: images in, curves/kernel/diagnostics out; progress through a callback.
 #include <functional>
 #include <map>
@@ -16,6 +16,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "crfcal/channel_verdict.hpp"
 #include "crfcal/crf_fitter.hpp"
 #include "crfcal/curve_band.hpp"
 #include "crfcal/effects.hpp"
@@ -64,6 +65,8 @@ struct PairCalibrationOptions {
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
   CurveBandOptions band;             // the pointwise band of φ per channel (curve_band.hpp); replicates = 0: none
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
+  VerdictOptions verdict;            // the per-channel verdict's thresholds (channel_verdict.hpp)
+  std::string nominal_ratio_name = "EXIF";  // how the verdict's reasons name fit.nominal_ratio ("EXIF", "--ratio")
   std::function<void(const std::string& stage, double fraction, const std::string& detail)> progress;
   void check() const;                // throws InvalidInput
 };
@@ -99,6 +102,11 @@ struct PairCalibrationResult {
   EffectReport effects;                  // named effects tested on the residuals (effects.hpp)
   std::map<std::string, CurveBand> bands;  // per channel with a covered range (options.band; empty when off)
   std::map<std::string, CrfFitResult> base_fits;  // the fits before an effect's extended model replaced them
+  // Per channel: the shots' brightness ratio (quantile matching with the EMoR mean curve, as `study ratio`; absent
+  // when too few usable levels) and
+  // the verdict (channel_verdict.hpp).
+  std::map<std::string, double> brightness_ratio;
+  std::map<std::string, ChannelVerdict> verdicts;
   std::string summary() const;
 };
 

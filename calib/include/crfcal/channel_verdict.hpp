@@ -1,0 +1,114 @@
+#pragma once
+// The verdict per channel (issue 17, item 4): "ok", "weak" or "unreliable", with short reasons that carry the
+// numbers. It judges a finished calibration against what the pair says independently of the fit, so that a user is
+// never shown a wrong curve without being told. The grounds:
+//  * r against the evidence about r: the nominal ratio (EXIF, footnote 4, or --ratio) and the brightness ratio of
+//    the two shots (estimateExposureRatio, exposure_fit.hpp, quantile matching with the EMoR mean curve — the measurement of
+//    `crfcal study ratio` — widened to the range of exponents real curves have relative to that mean curve). Along the exponential ambiguity φ → φ^γ, r → r^γ (Sec. 4: only the blur fixes γ) the
+//    fit can land on a wrong exponent; its r then leaves both. r further than `max_ratio_factor` from every
+//    available source → unreliable; from some of them → weak (either the source is off or the fit is).
+//  * r on the wrong side of 1: EXIF gives the blurred shot more light (beyond EXIF's tolerance) but r < 1, or the
+//    mirror case → unreliable (a physical impossibility, not a matter of precision).
+//  * r held at EXIF because the blur was too small to fix it (pair_calibration.hpp): the images disagreed → weak.
+//  * r consistent across channels: r is a property of the exposure (time, ISO, aperture), the same for every
+//    channel; a channel outside a band of ±max_channel_ratio_spread/2 (in log) around the channels' median r → weak.
+//  * the covered range: data spanning less than min_covered_span of the intensities → weak (φ is mostly
+//    extrapolated).
+//  * a flat fit: φ's local exponent d log φ / d log x below flat_local_exponent (or φ ≤ 0) over at least
+//    max_flat_fraction of the covered range → unreliable (no real inverse response is nearly constant over data).
+//  * the effect diagnostics' refit (effect_refit_guard.cpp): adopted only when plausible and no worse than the base
+//    fit on held-back pixels; the verdict says which fit is reported and why (a note, not a downgrade: the guard
+//    already kept the better of the two).
+// Pure computation: numbers in, verdicts out.
+#include <map>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace crfcal {
+
+enum class VerdictLevel { ok = 0, weak = 1, unreliable = 2 };
+const char* toString(VerdictLevel level);  // "ok", "weak", "unreliable"
+
+struct VerdictOptions {
+  // Largest factor between the reported r and a source of evidence about r for that source to agree. EXIF's nominal
+  // ISO, shutter time and f-number are rounded to 1/3 stop (±1/6 stop each), which for ISO and time of both shots
+  // gives σ(log r) ≈ 0.13; log 1.5 = 0.41 ≈ 3σ. The shots' brightness ratio, measured with the EMoR mean curve
+  // instead of the camera's, deviated from EXIF by 0.20 in log on the phone pairs (`crfcal study ratio`), also well
+  // inside. Issue 17 states the same factor 1.5.
+  double max_ratio_factor = 1.5;
+  // The shots' brightness ratio is measured with the EMoR mean curve g0, not the camera's: if the camera's
+  // curve is g0^k, the measured ratio is r^(1/k), so the shots say r ∈ [r_b^k_min, r_b^k_max] (then the
+  // factor above on either side). k_min = 1: g0 is the mean of 201 measured curves (DoRF). k_max = 1.6: the ten
+  // measured cameras of samples/camera_curves are g0^k with k = 1.18–1.61 (least squares of log φ on log g0 over
+  // x 0.06–0.92, the estimator's range; all more convex than g0).
+  double brightness_ratio_exponent_min = 1.0;
+  double brightness_ratio_exponent_max = 1.6;
+  // r on the wrong side of 1 counts only when the nominal ratio is further from 1 than this (EXIF's tolerance, the
+  // effects' ratio_tolerance).
+  double ratio_side_tolerance = 0.10;
+  // Channels' r: largest spread allowed (max/min − 1). r is the exposure's ratio, common to all channels; a white
+  // balance that changes between the shots moves single channels. Issue 17: within 10 %.
+  double max_channel_ratio_spread = 0.10;
+  // Covered intensity span below which φ is mostly extrapolated (the pipeline's own warning, min_covered_span).
+  double min_covered_span = 0.5;
+  // Local exponent d log φ / d log x below which φ counts as flat. Measured inverse responses have local exponents
+  // ≥ 0.56 (the ten Middlebury cameras) and the fitter bounds them at 0.25 (min_local_exponent); 0.1 is far below
+  // both: only a degenerate curve goes there.
+  double flat_local_exponent = 0.1;
+  // φ also counts as flat where it rises less than this fraction of what any real curve rises there: the smallest
+  // rise of g0^k over the sub-interval for k in [brightness_ratio_exponent_min, _max] (the EMoR mean and the most
+  // convex measured camera). A tenth: an order of magnitude, beyond the scale error of φ(1) = 1 extrapolated from
+  // data that stop early. It catches a curve nearly 0 over the data with all its rise above them (a steep power law
+  // has a large local exponent, so the rule above misses it).
+  double flat_slope_fraction = 0.1;
+  // Fraction of the covered span over which a flat φ makes the channel unreliable (a tenth: more than a local dip).
+  double max_flat_fraction = 0.1;
+  void check() const;  // throws InvalidInput
+};
+
+// The effect diagnostics' refit (EffectReport's guard fields), shared by all channels.
+struct RefitEvidence {
+  bool tried = false;
+  bool adopted = false;
+  std::string rejected_reason;
+  double heldout_error_base_fit = 0, heldout_error_refit = 0;
+};
+
+// What one channel's verdict is judged on.
+struct ChannelEvidence {
+  std::string channel;                 // "R", "G", "B"
+  double ratio = 1;                    // r as reported
+  double nominal_ratio = 0;            // EXIF or --ratio; ≤ 0: unknown
+  std::string nominal_source = "EXIF"; // how the reasons name it ("EXIF" or "--ratio")
+  bool ratio_fixed = false;            // r was not fitted (--fix-ratio): r = nominal_ratio by construction
+  bool ratio_held_small_blur = false;  // r held at the nominal ratio because the blur was too small
+  double ratio_images_small_blur = 0;  // then: the r of the free fit
+  double brightness_ratio = 0;               // the shots' brightness ratio (quantile matching, EMoR mean curve); ≤ 0: not measured
+  std::optional<std::pair<double, double>> covered;  // intensities the data constrain
+  std::vector<double> inverse_crf;     // φ(i/(n−1)) as reported
+};
+
+struct ChannelVerdict {
+  VerdictLevel level = VerdictLevel::ok;
+  // Short sentences with the numbers: first those that set the level, then notes. An "ok" channel gets one
+  // sentence with the checks it passed.
+  std::vector<std::string> reasons;
+  std::string summary() const;  // "weak: reason; reason"
+};
+
+// One verdict per channel of `channels`. `refit`: the effect diagnostics' refit (default: none tried).
+std::map<std::string, ChannelVerdict> judgeChannels(const std::vector<ChannelEvidence>& channels,
+                                                    const RefitEvidence& refit, const VerdictOptions& options = {});
+
+// Worst level over the channels (ok for none).
+VerdictLevel worstLevel(const std::map<std::string, ChannelVerdict>& verdicts);
+
+// Fraction of the covered range [lo, hi] over which φ (samples on [0, 1]) is flat: on each of 32 equal
+// sub-intervals, φ ≤ 0, a local exponent below options.flat_local_exponent, or a rise below
+// options.flat_slope_fraction of the smallest rise of the real-curve family g0^k there.
+double flatFraction(const std::vector<double>& inverse_crf, std::pair<double, double> covered,
+                    const VerdictOptions& options = {});
+
+}  // namespace crfcal
