@@ -22,6 +22,9 @@ void PairCalibrationOptions::check() const {
   if (!(irradiance_kernel_lambda >= 0)) throw InvalidInput("irradiance_kernel_lambda must be >= 0");
   if (!(small_blur_ratio_tolerance >= 0)) throw InvalidInput("small_blur_ratio_tolerance must be >= 0");
   effects.check();
+  chroma_detail.check();
+  if (sharp_chroma.h < 1 || sharp_chroma.v < 1 || sharp_chroma.h > 4 || sharp_chroma.v > 4)
+    throw InvalidInput("sharp_chroma sampling factors must be 1..4");
 }
 
 std::string PairCalibrationResult::summary() const {
@@ -48,6 +51,7 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
     detail::turnSharpShot(state, sharp);  // registers too
   else
     state.sharp = sharp;
+  detail::markChromaDetail(state, sharp);
   detail::splitPlanes(state);
   detail::checkExposureAndEdges(state);
   detail::registerShots(state);

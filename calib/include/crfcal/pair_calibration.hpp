@@ -16,6 +16,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "crfcal/chroma_subsampling.hpp"
 #include "crfcal/crf_fitter.hpp"
 #include "crfcal/effects.hpp"
 #include "crfcal/kernel_estimation.hpp"
@@ -60,6 +61,12 @@ struct PairCalibrationOptions {
   // shutter times, ISOs and apertures); the same 10 % as effects.ratio_tolerance, set separately.
   double small_blur_ratio_tolerance = 0.10;
   double min_covered_span = 0.5;     // intensity span covered by a channel's data below this: warn (extrapolation)
+  // The sharp shot's JPEG chroma sampling (read from the file; 1×1 for 4:4:4, lossless or grey input). Subsampled:
+  // R and B are fitted only where the sharp shot's chroma is flat on the block scale (chroma_subsampling.hpp,
+  // issue 20); G, carried by luma, keeps today's model. The blurred shot's chroma needs nothing: its blur removed the
+  // detail the blocks lose (measured, docs/RESULTS.md#chroma).
+  ChromaSubsampling sharp_chroma;
+  ChromaDetailOptions chroma_detail;
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
   std::function<void(const std::string& stage, double fraction, const std::string& detail)> progress;
@@ -83,6 +90,8 @@ struct PairCalibrationResult {
   std::vector<cv::Mat> tile_kernels;     // one per tile when more than one tile
   KernelDisagreement disagreement;
   std::vector<std::string> channels;     // "R","G","B" or "G"
+  // Channels fitted only where the sharp shot's subsampled chroma is flat (options.sharp_chroma; issue 20)
+  std::vector<std::string> chroma_model_channels;
   std::map<std::string, CrfFitResult> fits;
   std::vector<CalibrationRound> rounds;
   double blur_radius = 0;                // RMS radius of the final kernel about its centroid, pixels
