@@ -54,7 +54,7 @@ struct PairsArgs {
   double rotation = 0.4;
   int quality = 95;
   std::string jpeg_sampling = "4:2:0";
-  std::string chroma_model = "auto";    // as calibrate --chroma-model  // chroma sampling of both shots (4:2:0: OpenCV's writer, as before)
+  std::string chroma_model = "off";     // as calibrate --chroma-model  // chroma sampling of both shots (4:2:0: OpenCV's writer, as before)
   int max_side = 800;
   int kernel_size = 35;
   std::string channels = "g";

@@ -33,7 +33,9 @@ namespace {
 struct CalibrateArgs {
   std::string first, second, output;
   std::string channels = "rgb";
-  std::string chroma_model = "auto";  // auto: the sharp JPEG's chroma sampling picks the model (issue 20); off
+  // auto: the sharp JPEG's chroma sampling picks the model (issue 20); off (default: measured no better on the
+  // semi-real bench, docs/RESULTS.md#chroma)
+  std::string chroma_model = "off";
   std::string model = "auto";
   double ratio = 0;  // 0: from EXIF
   int kernel_size = 35;
@@ -355,8 +357,9 @@ const CommandRegistration registration(
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
       command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--chroma-model", args->chroma_model,
-                         "auto: a sharp JPEG with subsampled chroma (4:2:0, 4:2:2) fits R and B only where its chroma "
-                         "is flat on the block scale; off: the pointwise model everywhere (ablation)")
+                         "auto: a sharp JPEG with subsampled chroma (4:2:0, 4:2:2) fits R and B only where its lost "
+                         "chroma detail is small (better on the demo pair, not on average: docs/RESULTS.md#chroma); "
+                         "off: the pointwise model everywhere")
           ->capture_default_str()
           ->check(CLI::IsMember({"auto", "off"}));
       command.add_option("--channels", args->channels, "Channels to fit: g (green only) or rgb")

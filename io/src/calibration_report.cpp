@@ -36,7 +36,7 @@ void addInputWarnings(const PairCalibrationResult& result, const LoadedPair& pai
     if (subsampled.size() > 1) files += " and " + subsampled.back();
     warnings.push_back(files + ": JPEG chroma subsampled: R and B are rebuilt from chroma averaged across "
                        "edges after the tone curve, so their curves are less reliable than G's (see "
-                       "docs/RESULTS.md#chroma; `--chroma-model auto` models it)");
+                       "docs/RESULTS.md#chroma)");
   }
 }
 

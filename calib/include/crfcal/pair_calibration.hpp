@@ -61,10 +61,11 @@ struct PairCalibrationOptions {
   // shutter times, ISOs and apertures); the same 10 % as effects.ratio_tolerance, set separately.
   double small_blur_ratio_tolerance = 0.10;
   double min_covered_span = 0.5;     // intensity span covered by a channel's data below this: warn (extrapolation)
-  // The sharp shot's JPEG chroma sampling (read from the file; 1×1 for 4:4:4, lossless or grey input). Subsampled:
-  // R and B are fitted only where the sharp shot's chroma is flat on the block scale (chroma_subsampling.hpp,
-  // issue 20); G, carried by luma, keeps today's model. The blurred shot's chroma needs nothing: its blur removed the
-  // detail the blocks lose (measured, docs/RESULTS.md#chroma).
+  // The sharp shot's JPEG chroma sampling (`calibrate --chroma-model auto` reads it from the file; default 1×1: the
+  // pointwise model). Subsampled: R and B are fitted only where the sharp shot's lost chroma detail is small
+  // (chroma_subsampling.hpp, issue 20); G, carried by luma, keeps today's model. The blurred shot's chroma needs
+  // nothing: its blur removed the detail the blocks lose. Measured (docs/RESULTS.md#chroma): demo pair B 0.133 →
+  // 0.024, but over the 27 semi-real pairs no better on average (B 0.0676 → 0.0677, R 0.0202 → 0.0290), hence opt-in.
   ChromaSubsampling sharp_chroma;
   ChromaDetailOptions chroma_detail;
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
