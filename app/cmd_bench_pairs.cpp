@@ -29,6 +29,7 @@
 #include "crfcal/io/datasets.hpp"
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/image_io.hpp"
+#include "crfcal/io/jpeg_info.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/noise_profiles.hpp"
 #include "crfcal/io/pair_input.hpp"
@@ -52,6 +53,8 @@ struct PairsArgs {
   double shift = 4.3;
   double rotation = 0.4;
   int quality = 95;
+  std::string jpeg_sampling = "4:2:0";
+  std::string chroma_model = "off";     // as calibrate --chroma-model  // chroma sampling of both shots (4:2:0: OpenCV's writer, as before)
   int max_side = 800;
   int kernel_size = 35;
   std::string channels = "g";
@@ -271,6 +274,7 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.kernel.kernel_size = args.kernel_size;
   options.rgb = args.channels == "rgb";
   options.fit.nominal_ratio = loaded.exif_ratio->ratio();
+  if (args.chroma_model == "auto") options.sharp_chroma = {loaded.sharp.chroma_block_h, loaded.sharp.chroma_block_v};
   options.fit.ratio_prior_sigma = args.ratio_prior;
   options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
   options.fit.fit_ratio = !args.fix_ratio;
@@ -295,6 +299,7 @@ void writeKernels(const fs::path& dir, const cv::Mat& estimated, const cv::Mat& 
 // The scores of one calibrated case.
 struct CaseScores {
   double seconds = 0, rmse = 0, base = 0, rr = 0, kerr = 0, cerr = 0;
+  double rmse_r = -1, rmse_b = -1;  // --channels rgb: φ_R, φ_B RMSE against the (common) truth
   ChannelComparison shape;
   std::optional<BandScore> band;  // the G band against the truth (when a band was estimated)
   double band_seconds = 0;
@@ -336,21 +341,37 @@ struct PairsRun {
   Progress progress;
   nlohmann::json results = nlohmann::json::array();
   std::ostringstream table;
+  bool rgb = false;
   int index = 0, done = 0;
   VerdictCounts verdicts;
+  double sum_rmse_r = 0, sum_rmse_b = 0;
   double sum_rmse = 0, sum_base = 0, sum_r = 0, sum_k = 0, worst_r = 0, worst_rmse = 0;
 
   PairsRun(const PairsArgs& a, io::OutputDirectory& o, const std::optional<io::CameraNoiseProfile>& camera,
            std::map<double, RatioSummary>& ratios, bool real)
-      : args(a), out(o), noise_camera(camera), by_ratio(ratios), any_real(real) {}
+      : args(a), out(o), noise_camera(camera), by_ratio(ratios), any_real(real), rgb(a.channels == "rgb") {}
 
   void writeHeader() {
+    if (rgb) {
+      // --channels rgb: one curve per channel against the common truth (issue 20: chroma subsampling)
+      table << "JPEG chroma sampling " << args.jpeg_sampling << "\n\n"
+            << "| case | image | curve | kernel | r | phi_R RMSE | phi_G RMSE | phi_B RMSE | (G base fit) | r fitted/true (G) | time s |\n"
+            << "|---|---|---|---|---|---|---|---|---|---|---|\n";
+      return;
+    }
     if (noise_camera) table << "real regime: noise of " << noise_camera->summary() << "\n\n";
     // The shape column only with the real regime, so that the r = 1, 2 tables stay those of RESULTS.
     table << "| case | image | curve | kernel | r | phi_G RMSE | (base fit) | r fitted/true | kernel shape err | "
              "reg. corner err px | "
           << (any_real ? "shape RMSE covered | covered G | " : "") << "time s |\n"
           << "|---|---|---|---|---|---|---|---|---|---|---|" << (any_real ? "---|---|" : "") << "\n";
+  }
+
+  // A shot as JPEG: 4:2:0 through OpenCV (the benches' tables were measured with it), other samplings through libjpeg.
+  void writeShot(const fs::path& path, const cv::Mat& shot) const {
+    const io::JpegSampling sampling = io::jpegSamplingFromString(args.jpeg_sampling);
+    if (sampling == io::JpegSampling::s420) io::writeJpeg(path, shot, args.quality);
+    else io::writeJpegSampled(path, shot, args.quality, sampling);
   }
 
   // The simulated handheld pair of a case, written with its EXIF and truth.json into the case's directory.
@@ -373,8 +394,8 @@ struct PairsRun {
     }
     const HandheldPair pair = makeHandheldPair(photo, c.truth, c.kernel, ho);
     fs::create_directories(dir);
-    io::writeJpeg(dir / "sharp.jpg", pair.sharp, args.quality);
-    io::writeJpeg(dir / "blurred.jpg", pair.blurred, args.quality);
+    writeShot(dir / "sharp.jpg", pair.sharp);
+    writeShot(dir / "blurred.jpg", pair.blurred);
     ExifExposure es, eb;
     es.make = eb.make = "crfcal";
     es.model = eb.model = "semi-real handheld";
@@ -406,6 +427,11 @@ struct PairsRun {
     CaseScores s;
     s.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     s.rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(c.truth));
+    if (r.fits.count("R") && r.fits.count("B")) {
+      s.rmse_r = curveRmse(r.fits.at("R").inverse_crf, sampleInverse(c.truth));
+      s.rmse_b = curveRmse(r.fits.at("B").inverse_crf, sampleInverse(c.truth));
+      row.update({{"phi_rmse_R", s.rmse_r}, {"phi_rmse_B", s.rmse_b}});
+    }
     s.rr = r.fits.at("G").ratio / c.ratio;
     // φ before a detected effect's extended model replaced it (effects.hpp), for comparison.
     s.base = r.base_fits.count("G") ? curveRmse(r.base_fits.at("G").inverse_crf, sampleInverse(c.truth)) : s.rmse;
@@ -445,6 +471,11 @@ struct PairsRun {
 
   std::string tableRow(const PairCase& c, const CaseScores& s) const {
     char line[400];
+    if (rgb)
+      std::snprintf(line, sizeof line, "| %s | %s | %s | %s | %.2f | %.4f | %.4f | %.4f | %.4f | %.4f | %.1f |\n",
+                    c.name.c_str(), fs::path(c.image_path).filename().string().c_str(), shortName(c.crf).c_str(),
+                    c.kernel_spec.c_str(), c.ratio, s.rmse_r, s.rmse, s.rmse_b, s.base, s.rr, s.seconds);
+    if (rgb) return line;
     const std::string image = fs::path(c.image_path).filename().string();
     if (any_real)
       std::snprintf(line, sizeof line,
@@ -486,6 +517,8 @@ struct PairsRun {
     }
     if (!s.verdict.empty()) verdicts.add(s.verdict, r_error <= 0.05 && shape <= 0.01);
     sum_rmse += s.rmse;
+    sum_rmse_r += std::max(0.0, s.rmse_r);
+    sum_rmse_b += std::max(0.0, s.rmse_b);
     sum_base += s.base;
     sum_r += r_error;
     sum_k += s.kerr;
@@ -519,7 +552,7 @@ struct PairsRun {
       progress.done(line);
     } catch (const Error& e) {
       row["error"] = e.what();
-      table << "| " << c.name << " | failed: " << e.what() << " ||||||||||" << (any_real ? "||" : "") << "\n";
+      table << "| " << c.name << " | failed: " << e.what() << " ||||||||||" << (any_real && !rgb ? "||" : "") << "\n";
       const bool size_limit = std::string(e.what()).find("size limit") != std::string::npos;
       summary.size_limit_stops += size_limit;
       summary.other_failures += !size_limit;
@@ -538,8 +571,14 @@ struct PairsRun {
                     sum_rmse / done, worst_rmse, sum_base / done, sum_r / done, worst_r, sum_k / done, done, index);
       table << line;
       table << verdicts.line();
+      if (rgb) {
+        std::snprintf(line, sizeof line, "mean phi RMSE R / G / B %.4f / %.4f / %.4f (R/G %.2fx, B/G %.2fx)\n",
+                      sum_rmse_r / done, sum_rmse / done, sum_rmse_b / done, sum_rmse_r / std::max(sum_rmse, 1e-12),
+                      sum_rmse_b / std::max(sum_rmse, 1e-12));
+        table << line;
+      }
     }
-    if (any_real && !args.pairs_only) table << ratioSummaryTable(by_ratio);
+    if (any_real && !args.pairs_only && !rgb) table << ratioSummaryTable(by_ratio);
     if (!band_by_ratio.empty()) table << bandSummaryTable(band_by_ratio);
   }
 };
@@ -595,6 +634,14 @@ const BenchRegistration registration(
       command.add_option("--rotation", args->rotation, "Handheld rotation, degrees (sign alternates per case)")
           ->capture_default_str();
       command.add_option("--quality", args->quality, "JPEG quality")->capture_default_str()->check(CLI::Range(50, 100));
+      command.add_option("--jpeg-sampling", args->jpeg_sampling,
+                         "Chroma sampling of both JPEG shots: 4:2:0 (OpenCV's writer, as cameras), 4:2:2 (many "
+                         "DSLRs) or 4:4:4 (libjpeg)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"4:2:0", "4:2:2", "4:4:4"}));
+      command.add_option("--chroma-model", args->chroma_model, "auto or off, as calibrate --chroma-model")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"auto", "off"}));
       command.add_option("--max-side", args->max_side, "Downscale the photo to this longest side")->capture_default_str();
       command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)")
           ->capture_default_str()

@@ -33,6 +33,9 @@ namespace {
 struct CalibrateArgs {
   std::string first, second, output;
   std::string channels = "rgb";
+  // auto: the sharp JPEG's chroma sampling picks the model (issue 20); off (default: measured no better on the
+  // semi-real bench, docs/RESULTS.md#chroma)
+  std::string chroma_model = "off";
   std::string model = "auto";
   double ratio = 0;  // 0: from EXIF
   int kernel_size = 35;
@@ -167,6 +170,7 @@ io::LoadedPair decodePair(const CalibrateArgs& args, const io::RawDecodeOptions&
                                                               : io::BlurredChoice::automatic;
   io::LoadedPair pair = io::loadPair(args.first, args.second, choice, raw);
   requireUsablePair(pair);
+
   return pair;
 }
 
@@ -332,6 +336,7 @@ int runCalibrate(const CalibrateArgs& args) {
   }
 
   PairCalibrationOptions options = calibrationOptions(args, nominal_ratio);
+  if (args.chroma_model == "auto") options.sharp_chroma = {pair.sharp.chroma_block_h, pair.sharp.chroma_block_v};
   StageProgress stages{progress, {}};
   options.progress = [&stages](const std::string& stage, double fraction, const std::string& detail) {
     stages.report(stage, fraction, detail);
@@ -375,6 +380,12 @@ const CommandRegistration registration(
       command.add_option("BLURRED", args->second, "The long-exposure (blurred) shot")->required();
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
       command.add_flag("--force", args->force, kForceHelp);
+      command.add_option("--chroma-model", args->chroma_model,
+                         "auto: a sharp JPEG with subsampled chroma (4:2:0, 4:2:2) fits R and B only where its lost "
+                         "chroma detail is small (better on the demo pair, not on average: docs/RESULTS.md#chroma); "
+                         "off: the pointwise model everywhere")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"auto", "off"}));
       command.add_option("--channels", args->channels, "Channels to fit: g (green only) or rgb")
           ->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--model", args->model, "Model of phi: ggcm (Eq. 19), emor (PCA), auto (cross-validated)")

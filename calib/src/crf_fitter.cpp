@@ -110,7 +110,7 @@ std::string CrfFitResult::summary() const {
     s << "  candidate " << c.kind << ": energy " << c.energy << ", criterion " << c.criterion
       << (c.valid ? "" : " (invalid)") << ", r " << c.ratio << "\n";
   s << "pixels: " << pixels.used << " used of " << pixels.total << " (border " << pixels.border << ", saturated "
-    << pixels.saturated << ", low weight " << pixels.low_weight << ", subsampled " << pixels.subsampled << ")\n";
+    << pixels.saturated << ", unmodelled " << pixels.unmodelled << ", low weight " << pixels.low_weight << ", subsampled " << pixels.subsampled << ")\n";
   s.precision(4);
   s << "noise sigma of I: " << noise_sigma << (noise_sigma_estimated ? " (estimated)" : " (given)") << "; "
     << toString(objective) << ", " << toString(optimizer) << ", " << levels << " levels, " << moment_bins

@@ -49,6 +49,14 @@ cv::Mat denoiseSharp(const cv::Mat& unit, double sigma) {
   return out;
 }
 
+// Pixels within the kernel's support of a marked pixel (the window of Eq. 4's mixture at each pixel).
+cv::Mat dilateBySupport(const cv::Mat& marked, const cv::Mat& kernel) {
+  const cv::Size ks((kernel.cols | 1) + (kernel.cols % 2 == 0 ? 1 : 0), (kernel.rows | 1) + (kernel.rows % 2 == 0 ? 1 : 0));
+  cv::Mat out;
+  cv::dilate(marked, out, cv::getStructuringElement(cv::MORPH_RECT, ks));
+  return out;
+}
+
 // Saturated or censored pixels of B or I inside the interior, dilated by the kernel's support.
 cv::Mat saturationMask(const Prepared& prep, const cv::Mat& interior, const CrfFitOptions& options) {
   const cv::Mat& kernel = prep.kernel;
@@ -64,12 +72,22 @@ cv::Mat saturationMask(const Prepared& prep, const cv::Mat& interior, const CrfF
   } else {
     bad |= (prep.sharp_unit >= options.saturation_high) | (prep.sharp_unit <= options.saturation_low);
   }
-  {
-    const cv::Size ks((kernel.cols | 1) + (kernel.cols % 2 == 0 ? 1 : 0), (kernel.rows | 1) + (kernel.rows % 2 == 0 ? 1 : 0));
-    cv::dilate(bad, bad, cv::getStructuringElement(cv::MORPH_RECT, ks));
-  }
+  bad = dilateBySupport(bad, kernel);
   bad &= interior;
   return bad;
+}
+
+// Pixels whose mixture φ(I) ⊗ K may be off by more than max_sharp_error (CrfFitOptions::sharp_error_bound, weighted
+// by the kernel), inside the interior and not already saturated.
+cv::Mat unmodelledMask(const Prepared& prep, const cv::Mat& interior, const cv::Mat& saturated,
+                       const CrfFitOptions& options) {
+  if (options.sharp_error_bound.empty()) return cv::Mat::zeros(interior.size(), CV_8U);
+  if (options.sharp_error_bound.size() != interior.size() || options.sharp_error_bound.type() != CV_32F)
+    throw InvalidInput("fit options: sharp_error_bound must be a CV_32F map of the pair's size");
+  cv::Mat out = convolve(options.sharp_error_bound, prep.kernel) > options.max_sharp_error;
+  out &= interior;
+  out &= ~saturated;
+  return out;
 }
 
 // The selection weight of every pixel: seed Eq. 23 (Γ = B − I ⊗ K > τ1, r = 1) or Eq. 24 (I's local range > τ2,
@@ -181,10 +199,13 @@ Prepared preparePair(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat
   cv::Mat interior = cv::Mat::zeros(sharp.size(), CV_8U);
   if (inside.area() > 0) interior(inside).setTo(255);
   acc.border = acc.total - cv::countNonZero(interior);
-  const cv::Mat bad = saturationMask(prep, interior, options);
+  cv::Mat bad = saturationMask(prep, interior, options);
   acc.saturated = cv::countNonZero(bad);
   if (acc.saturated > 0 && acc.saturated == cv::countNonZero(interior))
     throw InvalidInput("fit: every pixel is saturated or censored (in B or I, dilated by the kernel support)");
+  const cv::Mat unmodelled = unmodelledMask(prep, interior, bad, options);
+  acc.unmodelled = cv::countNonZero(unmodelled);
+  bad |= unmodelled;
   selectPixels(prep, inside, bad, selectionWeight(prep, options), options, acc);
   return prep;
 }

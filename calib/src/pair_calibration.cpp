@@ -24,6 +24,9 @@ void PairCalibrationOptions::check() const {
   effects.check();
   band.check();
   verdict.check();
+  chroma_detail.check();
+  if (sharp_chroma.h < 1 || sharp_chroma.v < 1 || sharp_chroma.h > 4 || sharp_chroma.v > 4)
+    throw InvalidInput("sharp_chroma sampling factors must be 1..4");
 }
 
 std::string PairCalibrationResult::summary() const {
@@ -51,6 +54,7 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
     detail::turnSharpShot(state, sharp);  // registers too
   else
     state.sharp = sharp;
+  detail::markChromaDetail(state, sharp);
   detail::splitPlanes(state);
   detail::checkExposureAndEdges(state);
   detail::registerShots(state);

@@ -4,10 +4,24 @@
 #include <string>
 #include <vector>
 
+#include <opencv2/core.hpp>
+
+#include "crfcal/chroma_subsampling.hpp"
 #include "crfcal/kernel.hpp"
 #include "pair_stages.hpp"
 
 namespace crfcal::detail {
+
+void markChromaDetail(PairCalibrationState& state, const cv::Mat& sharp_in) {
+  const PairCalibrationOptions& options = state.options;
+  if (!options.sharp_chroma.subsampled() || sharp_in.channels() != 3 || !options.rgb) return;
+  for (const char* name : {"R", "B"}) {
+    cv::Mat bound = chromaErrorBound(sharp_in, options.sharp_chroma, name, options.chroma_detail);
+    if (state.result.sharp_rotation_deg == -90) cv::rotate(bound, bound, cv::ROTATE_90_CLOCKWISE);
+    else if (state.result.sharp_rotation_deg == 90) cv::rotate(bound, bound, cv::ROTATE_90_COUNTERCLOCKWISE);
+    state.sharp_chroma_error[name] = bound;
+  }
+}
 
 void chooseFitWindow(PairCalibrationState& state) {
   const PairCalibrationOptions& options = state.options;
@@ -37,6 +51,8 @@ void chooseFitWindow(PairCalibrationState& state) {
     b.setTo(0, outside);
     state.window_sharp[name] = s;
     state.window_blurred[name] = b;
+    if (const auto it = state.sharp_chroma_error.find(name); it != state.sharp_chroma_error.end())
+      state.window_sharp_error[name] = it->second(window).clone();
   }
 }
 
@@ -46,6 +62,8 @@ CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& na
   // cost pixels.
   const cv::Mat kernel = cropKernel(kernel_full, 0.0);
   CrfFitOptions fo = state.fit_options;
+  if (const auto it = state.window_sharp_error.find(name); it != state.window_sharp_error.end())
+    fo.sharp_error_bound = it->second;
   fo.progress = [&state, &name](double f, const std::string& stage) { state.report("fit " + name, f, stage); };
   return fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
 }

@@ -93,7 +93,17 @@ void fitKernelPhiRounds(PairCalibrationState& state) {
   for (const auto& name : result.channels) {
     if (name == "G") continue;
     const auto channel_start = Clock::now();
-    result.fits[name] = fitChannel(state, name, state.kernel);
+    try {
+      result.fits[name] = fitChannel(state, name, state.kernel);
+      if (state.window_sharp_error.count(name)) result.chroma_model_channels.push_back(name);
+    } catch (const InvalidInput& e) {
+      // The chroma model (a subsampled sharp JPEG) leaves too few pixels: today's pointwise model, with a warning.
+      if (!state.window_sharp_error.count(name)) throw;
+      state.window_sharp_error.erase(name);
+      result.warnings.push_back(name + ": too few pixels where the sharp shot's subsampled chroma is flat (" +
+                                e.reason() + "); fitted with the pointwise model, less reliable than G");
+      result.fits[name] = fitChannel(state, name, state.kernel);
+    }
     fit_time += secondsSince(channel_start);
   }
   result.timings["fit"] = fit_time;

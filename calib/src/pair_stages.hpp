@@ -71,8 +71,12 @@ struct PairCalibrationState {
   // kernel
   cv::Mat kernel;  // K, the current kernel (result.kernel.kernel once estimated)
 
+  // chroma: per channel, the bound of the error a subsampled JPEG's chroma put into the sharp shot's decoded values
+  // (chromaErrorBound; only R and B of a subsampled colour shot), in the sharp frame
+  std::map<std::string, cv::Mat> sharp_chroma_error;
+
   // fit window: both shots inside result.fit_window, per channel, in the images' depth (0 outside the overlap)
-  std::map<std::string, cv::Mat> window_sharp, window_blurred;
+  std::map<std::string, cv::Mat> window_sharp, window_blurred, window_sharp_error;
 
   // rounds
   CrfFitOptions fit_options;      // options.fit; fit_ratio cleared when the small-blur hold applies
@@ -121,6 +125,9 @@ KernelEstimate estimateCanvasKernel(PairCalibrationState& state, const cv::Mat& 
 
 // ---- fit window (pair_stage_fit.cpp)
 void chooseFitWindow(PairCalibrationState& state);
+// The sharp shot's chroma error bound per fitted channel (R, B) when its JPEG chroma is subsampled; `sharp_in` is the shot
+// as given (its blocks are aligned with its own origin), turned like state.sharp. After the orientation is known.
+void markChromaDetail(PairCalibrationState& state, const cv::Mat& sharp_in);
 // φ of channel `name` on the fit window with `kernel` (state.fit_options).
 CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& name, const cv::Mat& kernel);
 

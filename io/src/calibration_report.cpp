@@ -30,12 +30,15 @@ void addInputWarnings(const PairCalibrationResult& result, const LoadedPair& pai
   std::vector<std::string> subsampled;
   for (const auto* shot : {&pair.sharp, &pair.blurred})
     if (shot->chroma_subsampled) subsampled.push_back(shot->path.string() + " (" + shot->chroma_subsampling + ")");
-  if (!subsampled.empty() && result.fits.size() > 1) {
+  // With the chroma model (issue 20) R and B avoid the sharp shot's chroma detail; the blurred shot's subsampling
+  // alone does not matter (its blur removed the detail), so then no warning.
+  const bool modelled = !result.chroma_model_channels.empty();
+  if (!subsampled.empty() && result.fits.size() > 1 && !modelled) {
     std::string files = subsampled.front();
     if (subsampled.size() > 1) files += " and " + subsampled.back();
     warnings.push_back(files + ": JPEG chroma subsampled: R and B are rebuilt from chroma averaged across "
                        "edges after the tone curve, so their curves are less reliable than G's (see "
-                       "docs/RESULTS.md#calibrate)");
+                       "docs/RESULTS.md#chroma)");
   }
 }
 
@@ -230,6 +233,10 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
 
   json& extra = report.extra;
   extra["input"] = inputJson(context.pair);
+  // issue 20: channels fitted only where the sharp shot's subsampled chroma is flat, and the pixels that left out
+  extra["input"]["chroma_model_channels"] = result.chroma_model_channels;
+  for (const auto& name : result.chroma_model_channels)
+    extra["input"]["chroma_excluded_pixels"][name] = result.fits.at(name).pixels.unmodelled;
   addExposureRatio(result, context, extra);
   extra["kernel"] = kernelJson(result);
   extra["registration"] = registrationJson(result.registration);

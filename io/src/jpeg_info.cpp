@@ -8,7 +8,10 @@
 // after jpeglib.h, which it needs
 #include <jerror.h>
 
+#include <opencv2/imgproc.hpp>
+
 #include "crfcal/error.hpp"
+#include "crfcal/io/atomic_output.hpp"
 
 namespace crfcal::io {
 namespace {
@@ -74,6 +77,63 @@ JpegInfo readJpegInfo(const std::filesystem::path& path) {
   jpeg_destroy_decompress(&info);
   out.subsampling = describe(out.components, out.luma_h, out.luma_v);
   return out;
+}
+
+JpegSampling jpegSamplingFromString(const std::string& name) {
+  if (name == "4:2:0" || name == "420") return JpegSampling::s420;
+  if (name == "4:2:2" || name == "422") return JpegSampling::s422;
+  if (name == "4:4:4" || name == "444") return JpegSampling::s444;
+  throw InvalidInput("unknown JPEG chroma sampling '" + name + "' (4:2:0, 4:2:2 or 4:4:4)");
+}
+
+const char* toString(JpegSampling sampling) {
+  switch (sampling) {
+    case JpegSampling::s420: return "4:2:0";
+    case JpegSampling::s422: return "4:2:2";
+    case JpegSampling::s444: return "4:4:4";
+  }
+  return "?";
+}
+
+void writeJpegSampled(const std::filesystem::path& path, const cv::Mat& image, int quality, JpegSampling sampling) {
+  if (image.depth() != CV_8U || (image.channels() != 1 && image.channels() != 3))
+    throw Error("JPEG needs an 8-bit grey or colour image", path.string());
+  cv::Mat rgb;
+  if (image.channels() == 3) cv::cvtColor(image, rgb, cv::COLOR_BGR2RGB);
+  else rgb = image;
+  if (!rgb.isContinuous()) rgb = rgb.clone();
+  writeAtomically(path, [&](const std::filesystem::path& temporary) {
+    std::unique_ptr<FILE, int (*)(FILE*)> file(std::fopen(temporary.c_str(), "wb"), &std::fclose);
+    if (!file) throw Error("cannot write image", path.string());
+    jpeg_compress_struct info{};
+    ErrorManager manager;
+    info.err = jpeg_std_error(&manager.base);
+    manager.base.error_exit = onError;
+    // No C++ objects with destructors are created between setjmp and a possible longjmp.
+    if (setjmp(manager.jump)) {
+      jpeg_destroy_compress(&info);
+      throw Error(std::string("cannot encode JPEG (") + manager.message + ")", path.string());
+    }
+    jpeg_create_compress(&info);
+    jpeg_stdio_dest(&info, file.get());
+    info.image_width = static_cast<JDIMENSION>(rgb.cols);
+    info.image_height = static_cast<JDIMENSION>(rgb.rows);
+    info.input_components = rgb.channels();
+    info.in_color_space = rgb.channels() == 3 ? JCS_RGB : JCS_GRAYSCALE;
+    jpeg_set_defaults(&info);  // JFIF YCbCr (BT.601 full range), 4:2:0
+    jpeg_set_quality(&info, quality, TRUE);
+    if (rgb.channels() == 3) {
+      info.comp_info[0].h_samp_factor = sampling == JpegSampling::s444 ? 1 : 2;
+      info.comp_info[0].v_samp_factor = sampling == JpegSampling::s420 ? 2 : 1;
+    }
+    jpeg_start_compress(&info, TRUE);
+    while (info.next_scanline < info.image_height) {
+      JSAMPROW row = const_cast<JSAMPROW>(rgb.ptr<unsigned char>(static_cast<int>(info.next_scanline)));
+      jpeg_write_scanlines(&info, &row, 1);
+    }
+    jpeg_finish_compress(&info);
+    jpeg_destroy_compress(&info);
+  });
 }
 
 void requireCompleteJpeg(const unsigned char* data, std::size_t size, const std::filesystem::path& path) {

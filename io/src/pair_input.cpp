@@ -69,6 +69,10 @@ LoadedImage loadImage(const fs::path& path, const RawDecodeOptions& raw_options)
       const JpegInfo info = readJpegInfo(path);
       loaded.chroma_subsampling = info.subsampling;
       loaded.chroma_subsampled = info.chroma_subsampled();
+      if (loaded.chroma_subsampled) {
+        loaded.chroma_block_h = info.luma_h;
+        loaded.chroma_block_v = info.luma_v;
+      }
     }
   }
   loaded.sharpness = normalisedGradientEnergy(loaded.image);

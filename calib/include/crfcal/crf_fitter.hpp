@@ -107,6 +107,14 @@ struct CrfFitOptions {
   double min_local_exponent = 0.25;
   double saturation_high = 254.5 / 255.0;  // B or I at/above: saturated (dilated by the kernel's support)
   double saturation_low = 0.5 / 255.0;     // B or I at/below: censored black (dilated likewise)
+  // Optional CV_32F map of the pair's size: a bound of the error of I's values that the pointwise model cannot
+  // represent, in [0, 1] units — the lost chroma detail of a subsampled JPEG (chroma_subsampling.hpp). A pixel is
+  // used only if the kernel-weighted bound over its support, (bound ⊗ K)(p), is at most max_sharp_error: its mixture
+  // φ(I) ⊗ K is then off by at most about φ' times that. Empty: none (today's model). Wrong size → InvalidInput.
+  cv::Mat sharp_error_bound;
+  // 4 levels of 8 bits. Measured on the demo pair (RESULTS#chroma): 2 levels leave too few R pixels (R 0.043), 8 too
+  // many chroma edges (B 0.073); the oracle (true error) at 4 levels: R 0.011, B 0.026.
+  double max_sharp_error = 4.0 / 255;
   int max_evaluations = 1000;  // per Nelder–Mead run / LM iterations × 10
   int min_pixels = 200;        // fewer usable pixels: the pair has no edges → InvalidInput
   int max_pixels = 0;          // deterministic subsample above this (0: all pixels)
@@ -163,6 +171,7 @@ struct CrfPixelAccounting {
   int total = 0;       // all pixels
   int border = 0;      // kernel support leaves the image
   int saturated = 0;   // saturated/censored in B or I (dilated by the support), inside the border
+  int unmodelled = 0;  // not saturated, but I's kernel-weighted error bound above max_sharp_error (sharp_error_bound)
   int low_weight = 0;  // not an edge: W = 0 (Eq. 23/24) or B's local range ≤ edge_threshold
   int subsampled = 0;  // usable but dropped by max_pixels
   int used = 0;

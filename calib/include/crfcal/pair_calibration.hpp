@@ -17,6 +17,7 @@
 #include <opencv2/core.hpp>
 
 #include "crfcal/channel_verdict.hpp"
+#include "crfcal/chroma_subsampling.hpp"
 #include "crfcal/crf_fitter.hpp"
 #include "crfcal/curve_band.hpp"
 #include "crfcal/effects.hpp"
@@ -62,6 +63,13 @@ struct PairCalibrationOptions {
   // shutter times, ISOs and apertures); the same 10 % as effects.ratio_tolerance, set separately.
   double small_blur_ratio_tolerance = 0.10;
   double min_covered_span = 0.5;     // intensity span covered by a channel's data below this: warn (extrapolation)
+  // The sharp shot's JPEG chroma sampling (`calibrate --chroma-model auto` reads it from the file; default 1×1: the
+  // pointwise model). Subsampled: R and B are fitted only where the sharp shot's lost chroma detail is small
+  // (chroma_subsampling.hpp, issue 20); G, carried by luma, keeps today's model. The blurred shot's chroma needs
+  // nothing: its blur removed the detail the blocks lose. Measured (docs/RESULTS.md#chroma): demo pair B 0.133 →
+  // 0.024, but over the 27 semi-real pairs no better on average (B 0.0676 → 0.0677, R 0.0202 → 0.0290), hence opt-in.
+  ChromaSubsampling sharp_chroma;
+  ChromaDetailOptions chroma_detail;
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
   CurveBandOptions band;             // the pointwise band of φ per channel (curve_band.hpp); replicates = 0: none
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
@@ -88,6 +96,8 @@ struct PairCalibrationResult {
   std::vector<cv::Mat> tile_kernels;     // one per tile when more than one tile
   KernelDisagreement disagreement;
   std::vector<std::string> channels;     // "R","G","B" or "G"
+  // Channels fitted only where the sharp shot's subsampled chroma is flat (options.sharp_chroma; issue 20)
+  std::vector<std::string> chroma_model_channels;
   std::map<std::string, CrfFitResult> fits;
   std::vector<CalibrationRound> rounds;
   double blur_radius = 0;                // RMS radius of the final kernel about its centroid, pixels

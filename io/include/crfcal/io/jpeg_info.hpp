@@ -8,6 +8,8 @@
 #include <filesystem>
 #include <string>
 
+#include <opencv2/core.hpp>
+
 namespace crfcal::io {
 
 struct JpegInfo {
@@ -16,6 +18,17 @@ struct JpegInfo {
   std::string subsampling;      // "4:4:4", "4:2:2", "4:4:0", "4:2:0", "4:1:1", "grey", or "h×v" otherwise
   bool chroma_subsampled() const { return components >= 3 && (luma_h > 1 || luma_v > 1); }
 };
+
+// Chroma sampling of a JPEG written by crfcal (bench pairs --jpeg-sampling): 4:2:0 is what OpenCV and most cameras
+// write, 4:2:2 what many DSLRs write, 4:4:4 full-resolution chroma.
+enum class JpegSampling { s420, s422, s444 };
+JpegSampling jpegSamplingFromString(const std::string& name);  // "4:2:0"/"420", …; throws InvalidInput otherwise
+const char* toString(JpegSampling sampling);                    // "4:2:0", "4:2:2", "4:4:4"
+
+// Writes an 8-bit grey or BGR image as a baseline JFIF JPEG of `quality` (1–100) with the given chroma sampling,
+// through libjpeg (the same library and defaults OpenCV uses: standard tables, integer DCT, no optimised Huffman),
+// atomically. Throws crfcal::Error naming the file.
+void writeJpegSampled(const std::filesystem::path& path, const cv::Mat& image, int quality, JpegSampling sampling);
 
 // Reads the frame header. Throws crfcal::Error naming the file when it is not a readable JPEG.
 JpegInfo readJpegInfo(const std::filesystem::path& path);

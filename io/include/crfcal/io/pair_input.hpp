@@ -23,7 +23,8 @@ struct LoadedImage {
   ExifExposure exposure;
   double sharpness = 0;   // normalised gradient energy
   std::string chroma_subsampling;  // JPEG: "4:2:0", "4:4:4", … (jpeg_info.hpp); empty for other formats
-  bool chroma_subsampled = false;  // JPEG with chroma stored below full resolution (JpegInfo::chroma_subsampled)
+  bool chroma_subsampled = false;
+  int chroma_block_h = 1, chroma_block_v = 1;  // JPEG: luma pixels per chroma sample (2×2 for 4:2:0); else 1×1  // JPEG with chroma stored below full resolution (JpegInfo::chroma_subsampled)
 };
 
 // Reads one image (RAW decoded linearly). Throws crfcal::Error naming the file.

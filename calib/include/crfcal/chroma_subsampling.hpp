@@ -1,0 +1,42 @@
+#pragma once
+// JPEG chroma subsampling in the pair model (issue 20). A 4:2:0 / 4:2:2 JPEG stores Cb and Cr (JFIF: BT.601, full
+// range, of the gamma-encoded RGB) averaged over 2×2 / 2×1 pixel blocks; the decoder rebuilds R and B from
+// full-resolution luma plus that chroma. Where the true chroma varies inside a block, a decoded R or B differs from
+// ψ(E) by the chroma's lost detail (R: 1.402·ΔCr, B: 1.772·ΔCb), which the pointwise model
+// B = ψ(r·(φ(I) ⊗ K)) (Eq. 4) cannot represent.
+// Measured (docs/RESULTS.md#chroma): only the sharp shot matters — the blurred shot's chroma is smooth, its blur
+// removed the detail the blocks lose (demo pair: sharp 4:2:0 + blurred 4:4:4 gives φ_B RMSE 0.130, sharp 4:4:4 +
+// blurred 4:2:0 0.024). The sharp shot's true chroma inside a block is not in the file, so R and B are fitted where
+// it does not matter: pixels whose kernel-weighted bound of that error over their support is small (the fitter's
+// CrfFitOptions::sharp_error_bound). Fitting there with the true per-pixel error (an oracle from a 4:4:4 twin)
+// brings R and B to the 4:4:4 accuracy; chromaErrorBound estimates it from the stored chroma.
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace crfcal {
+
+// Chroma block size relative to luma (JPEG sampling factors): 1×1 = 4:4:4 (or not a JPEG), 2×2 = 4:2:0, 2×1 = 4:2:2.
+struct ChromaSubsampling {
+  int h = 1, v = 1;
+  bool subsampled() const { return h > 1 || v > 1; }
+  std::string name() const;  // "4:4:4", "4:2:0", "4:2:2", "4:4:0", or "h×v"
+};
+
+struct ChromaDetailOptions {
+  // The chroma inside a block can vary only as much as the stored block averages around it do: the bound at a block
+  // is the range of the stored averages over the block and this many blocks on each side (2: a 5×5-block window,
+  // 10×10 pixels at 4:2:0). Measured on the demo pair: 1 → R/B 0.030/0.027, 2 → 0.026/0.024 (RESULTS).
+  int reach_blocks = 2;
+  void check() const;  // throws InvalidInput
+};
+
+// A per-pixel bound of |decoded − true| of `channel` ("R", "G" or "B") of a decoded JPEG, CV_32F in the channel's
+// [0, 1] units: the channel's reconstruction coefficient (R 1.402 Cr, B 1.772 Cb, G 0.344 Cb + 0.714 Cr) times the
+// range of the stored chroma averages around the pixel's block, less the median of that range over the image (the
+// share of the noise: most blocks are flat), at least 0. bgr: 8- or 16-bit BGR as decoded; blocks aligned with the
+// image origin, as in the file. Not subsampled: all zero.
+cv::Mat chromaErrorBound(const cv::Mat& bgr, ChromaSubsampling sampling, const std::string& channel,
+                         const ChromaDetailOptions& options = {});
+
+}  // namespace crfcal
