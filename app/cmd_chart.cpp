@@ -220,10 +220,7 @@ io::CalibrationReport chartReport(const ChartArgs& args, const ChartCalibrationO
   nlohmann::json patches_json = nlohmann::json::array();
   for (const auto& c : result.channels) {
     const std::string name = channelName(c.channel);
-    report.inverse_crf[name] = c.fit.inverse;
-    report.models[name] = c.ggcm;
-    report.covered_range[name] = c.fit.covered_range;
-    report.pixels_used[name] = c.fit.observations;
+    addScaledFitChannel(report, name, c.fit, c.ggcm);
     channels_json[name] = channelJson(c);
     for (const auto& p : c.patches)
       patches_json.push_back({{"channel", name},

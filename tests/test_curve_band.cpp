@@ -79,7 +79,9 @@ TEST(CurveBand, AboveTheDataTheBandBoundsTheExponentAndHoldsTheFit) {
   for (int i = 0; i < 1024; ++i) {
     EXPECT_LE(band.lower[i], phi[i] + 1e-12) << i;
     EXPECT_GE(band.upper[i], phi[i] - 1e-12) << i;
-    if (i > 0) EXPECT_GE(band.lower[i], band.lower[i - 1]) << i;
+    if (i > 0) {
+      EXPECT_GE(band.lower[i], band.lower[i - 1]) << i;
+    }
   }
   EXPECT_EQ(band.lower[1023], 1.0);
   // x = 0.8 above the data: between x^g_hi and x^g_lo, with g_lo = 1 (straightening) and g_hi = 4.4 (2 × 2.2).

@@ -67,10 +67,7 @@ CalibrationReport bracketReport(const BracketCalibrationResult& result, const st
   nlohmann::json channels = nlohmann::json::object();
   for (const auto& c : result.channels) {
     const std::string name = channelName(c.channel);
-    report.inverse_crf[name] = c.fit.inverse;
-    report.models[name] = c.ggcm;
-    report.covered_range[name] = c.fit.covered_range;
-    report.pixels_used[name] = c.fit.observations;
+    addScaledFitChannel(report, name, c.fit, c.ggcm);
     channels[name] = channelJson(c);
   }
   nlohmann::json frames = nlohmann::json::array();

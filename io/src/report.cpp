@@ -147,4 +147,12 @@ void writeReport(const std::filesystem::path& path, const CalibrationReport& rep
   writeTextFile(path, report.toJson().dump(2) + "\n");
 }
 
+void addScaledFitChannel(CalibrationReport& report, const std::string& channel, const ScaledFitResult& fit,
+                         const GgcmModel& ggcm) {
+  report.inverse_crf[channel] = fit.inverse;
+  report.models[channel] = ggcm;
+  report.covered_range[channel] = fit.covered_range;
+  report.pixels_used[channel] = fit.observations;
+}
+
 }  // namespace crfcal::io

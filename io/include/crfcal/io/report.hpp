@@ -22,6 +22,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "crfcal/chart_calibration.hpp"
 #include "crfcal/response_model.hpp"
 
 namespace crfcal::io {
@@ -45,6 +46,11 @@ struct CalibrationReport {
   nlohmann::json toJson() const;
   static CalibrationReport fromJson(const nlohmann::json& json, const std::string& source = {});
 };
+
+// One channel of a static calibration (chart, bracket: the scaled-exposure fitter of chart_calibration.hpp) into a
+// report: φ, its GGCM form, the covered range and the observations used.
+void addScaledFitChannel(CalibrationReport& report, const std::string& channel, const ScaledFitResult& fit,
+                         const GgcmModel& ggcm);
 
 // Reads report.json (or a simulate truth.json, whose "inverse_crf" is a plain list: channel "G").
 // Throws crfcal::Error naming the file.
