@@ -336,7 +336,8 @@ int runCalibrate(const CalibrateArgs& args) {
   }
 
   PairCalibrationOptions options = calibrationOptions(args, nominal_ratio);
-  if (args.chroma_model == "auto") options.sharp_chroma = {pair.sharp.chroma_block_h, pair.sharp.chroma_block_v};
+  options.sharp_stored_chroma = {pair.sharp.chroma_block_h, pair.sharp.chroma_block_v};
+  if (args.chroma_model == "auto") options.sharp_chroma = options.sharp_stored_chroma;
   StageProgress stages{progress, {}};
   options.progress = [&stages](const std::string& stage, double fraction, const std::string& detail) {
     stages.report(stage, fraction, detail);

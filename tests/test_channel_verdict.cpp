@@ -125,6 +125,14 @@ TEST(ChannelVerdict, NarrowCoveredRangeIsWeak) {
   EXPECT_TRUE(mentions(v, "0.01-0.47")) << v.summary();
 }
 
+TEST(ChannelVerdict, ColourChannelFromSubsampledSharpChromaIsWeak) {
+  ChannelEvidence e = clean("B");
+  e.pointwise_from_subsampled_chroma = "4:2:0";
+  const ChannelVerdict v = judgeOne(e);
+  EXPECT_EQ(v.level, VerdictLevel::weak) << v.summary();
+  EXPECT_TRUE(mentions(v, "4:2:0")) << v.summary();
+}
+
 TEST(ChannelVerdict, FlatCurveOverPartOfTheCoveredRangeIsUnreliable) {
   ChannelEvidence e = clean();
   // φ = 0 up to x = 0.75, then rising (the held-out phone pair of issue 17).

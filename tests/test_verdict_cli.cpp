@@ -53,5 +53,22 @@ TEST(VerdictCli, StrictExitsFourWhenAChannelIsUnreliableAndStillWrites) {
       << report["verdict_reasons"].dump();
 }
 
+// The demo pair's JPEGs are 4:2:0: with the pointwise model, R and B are "weak" and say why (their φ is 5–27× worse
+// than G's, docs/RESULTS.md#chroma); G stays "ok".
+TEST(VerdictCli, DemoPairColourChannelsFromSubsampledChromaAreWeak) {
+  test::TempDir dir;
+  std::string command = demoCommand(dir / "out", "");
+  command.replace(command.find("--channels g"), 12, "--channels rgb");
+  const auto r = test::run(command);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto report = readReport(dir / "out");
+  EXPECT_EQ(report["verdict"]["G"], "ok") << report["verdict_reasons"].dump();
+  for (const char* name : {"R", "B"}) {
+    EXPECT_EQ(report["verdict"][name], "weak") << report["verdict_reasons"].dump();
+    EXPECT_NE(report["verdict_reasons"][name].dump().find("4:2:0"), std::string::npos)
+        << report["verdict_reasons"].dump();
+  }
+}
+
 }  // namespace
 }  // namespace crfcal

@@ -127,8 +127,12 @@ void judgeRatio(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
                                    format(" (the images alone gave %.3g)", e.ratio_images_small_blur));
 }
 
-// Covered span and flat stretches of φ over it.
+// Covered span and flat stretches of φ over it; a colour channel rebuilt from subsampled chroma.
 void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j) {
+  if (!e.pointwise_from_subsampled_chroma.empty())
+    j.find(VerdictLevel::weak, "fitted from a sharp JPEG with " + e.pointwise_from_subsampled_chroma +
+                                   " chroma: its " + e.channel + " at edges is rebuilt from block-averaged chroma, "
+                                   "which the pointwise model does not represent (--chroma-model auto fits around it)");
   if (!e.covered) return;
   const auto [lo, hi] = *e.covered;
   if (hi - lo < o.min_covered_span)

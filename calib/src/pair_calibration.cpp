@@ -25,8 +25,8 @@ void PairCalibrationOptions::check() const {
   band.check();
   verdict.check();
   chroma_detail.check();
-  if (sharp_chroma.h < 1 || sharp_chroma.v < 1 || sharp_chroma.h > 4 || sharp_chroma.v > 4)
-    throw InvalidInput("sharp_chroma sampling factors must be 1..4");
+  for (const ChromaSubsampling& c : {sharp_chroma, sharp_stored_chroma})
+    if (c.h < 1 || c.v < 1 || c.h > 4 || c.v > 4) throw InvalidInput("chroma sampling factors must be 1..4");
 }
 
 std::string PairCalibrationResult::summary() const {

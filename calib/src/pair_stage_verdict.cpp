@@ -161,6 +161,10 @@ void judgeChannelsOfPair(PairCalibrationState& state) {
     if (brightness > 0) result.brightness_ratio[name] = e.brightness_ratio = brightness;
     if (result.covered_range.count(name)) e.covered = result.covered_range.at(name);
     e.inverse_crf = fit.inverse_crf;
+    const auto& modelled = result.chroma_model_channels;
+    if (name != "G" && options.sharp_stored_chroma.subsampled() &&
+        std::find(modelled.begin(), modelled.end(), name) == modelled.end())
+      e.pointwise_from_subsampled_chroma = options.sharp_stored_chroma.name();
     evidence.push_back(e);
   }
   RefitEvidence refit;

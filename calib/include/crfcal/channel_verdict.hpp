@@ -88,6 +88,10 @@ struct ChannelEvidence {
   double brightness_ratio = 0;               // the shots' brightness ratio (quantile matching, EMoR mean curve); ≤ 0: not measured
   std::optional<std::pair<double, double>> covered;  // intensities the data constrain
   std::vector<double> inverse_crf;     // φ(i/(n−1)) as reported
+  // R or B fitted by the pointwise model from a sharp shot whose JPEG chroma is subsampled (e.g. "4:2:0"; empty:
+  // not the case). Its R and B at edges are rebuilt from chroma averaged over blocks after the tone curve; measured
+  // on the bundled demo pair: φ_B 0.133 and φ_R 0.028 against G 0.0049 (docs/RESULTS.md#chroma) → weak.
+  std::string pointwise_from_subsampled_chroma;
 };
 
 struct ChannelVerdict {

@@ -70,6 +70,9 @@ struct PairCalibrationOptions {
   // 0.024, but over the 27 semi-real pairs no better on average (B 0.0676 → 0.0677, R 0.0202 → 0.0290), hence opt-in.
   ChromaSubsampling sharp_chroma;
   ChromaDetailOptions chroma_detail;
+  // The sharp shot's chroma sampling as its file stores it, whatever the model (for the verdict: R and B fitted by
+  // the pointwise model from a subsampled sharp shot are "weak"). 1×1: full resolution or not a JPEG.
+  ChromaSubsampling sharp_stored_chroma;
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
   CurveBandOptions band;             // the pointwise band of φ per channel (curve_band.hpp); replicates = 0: none
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
