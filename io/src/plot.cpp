@@ -1,6 +1,7 @@
 #include "crfcal/io/plot.hpp"
 
 #include <algorithm>
+#include <functional>
 #include <cmath>
 #include <cstdio>
 
@@ -57,6 +58,35 @@ void dashedPolyline(cv::Mat& image, const std::vector<cv::Point2d>& points, cons
   }
 }
 
+// The bands as translucent polygons (lower edge left to right, upper edge back); `at` maps (x, y) to the pixel.
+void drawBands(cv::Mat& plot, const std::vector<PlotBand>& bands,
+               const std::function<cv::Point(double, double)>& at) {
+  for (const auto& b : bands) {
+    std::vector<cv::Point> polygon;
+    const size_t n = std::min({b.x.size(), b.lower.size(), b.upper.size()});
+    for (size_t i = 0; i < n; ++i) polygon.push_back(at(b.x[i], b.lower[i]));
+    for (size_t i = n; i-- > 0;) polygon.push_back(at(b.x[i], b.upper[i]));
+    if (polygon.size() < 3) continue;
+    cv::Mat layer = plot.clone();
+    cv::fillPoly(layer, std::vector<std::vector<cv::Point>>{polygon}, b.color, cv::LINE_AA);
+    cv::addWeighted(layer, b.opacity, plot, 1 - b.opacity, 0, plot);
+  }
+}
+
+// One legend line per labelled band (a swatch of its colour); returns the next line's baseline.
+int drawBandLegend(cv::Mat& canvas, const std::vector<PlotBand>& bands, int left, int legend_y) {
+  for (const auto& b : bands) {
+    if (b.label.empty()) continue;
+    cv::Mat swatch = canvas(cv::Rect(left + 12, legend_y - 11, 28, 12));
+    cv::addWeighted(swatch, 1 - std::max(b.opacity, 0.35), cv::Mat(swatch.size(), swatch.type(), b.color),
+                    std::max(b.opacity, 0.35), 0, swatch);
+    cv::putText(canvas, b.label, {left + 48, legend_y}, cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1,
+                cv::LINE_AA);
+    legend_y += 20;
+  }
+  return legend_y;
+}
+
 }  // namespace
 
 cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& options) {
@@ -109,16 +139,9 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
 
   cv::Mat plot = canvas(area);
   const cv::Point offset(area.x, area.y);
-  for (const auto& b : options.bands) {  // translucent polygons: lower left to right, upper back
-    std::vector<cv::Point> polygon;
-    const size_t n = std::min({b.x.size(), b.lower.size(), b.upper.size()});
-    for (size_t i = 0; i < n; ++i) polygon.emplace_back(cvRound(px(b.x[i]) - offset.x), cvRound(py(b.lower[i]) - offset.y));
-    for (size_t i = n; i-- > 0;) polygon.emplace_back(cvRound(px(b.x[i]) - offset.x), cvRound(py(b.upper[i]) - offset.y));
-    if (polygon.size() < 3) continue;
-    cv::Mat layer = plot.clone();
-    cv::fillPoly(layer, std::vector<std::vector<cv::Point>>{polygon}, b.color, cv::LINE_AA);
-    cv::addWeighted(layer, b.opacity, plot, 1 - b.opacity, 0, plot);
-  }
+  drawBands(plot, options.bands, [&](double x, double y) {
+    return cv::Point(cvRound(px(x) - offset.x), cvRound(py(y) - offset.y));
+  });
   for (const auto& s : series) {
     std::vector<cv::Point2d> points;
     for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
@@ -157,14 +180,7 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
     cv::putText(canvas, s.label, {area.x + 48, legend_y}, font, 0.45, black, 1, cv::LINE_AA);
     legend_y += 20;
   }
-  for (const auto& b : options.bands) {
-    if (b.label.empty()) continue;
-    cv::Mat swatch = canvas(cv::Rect(area.x + 12, legend_y - 11, 28, 12));
-    cv::addWeighted(swatch, 1 - std::max(b.opacity, 0.35), cv::Mat(swatch.size(), swatch.type(), b.color),
-                    std::max(b.opacity, 0.35), 0, swatch);
-    cv::putText(canvas, b.label, {area.x + 48, legend_y}, font, 0.45, black, 1, cv::LINE_AA);
-    legend_y += 20;
-  }
+  legend_y = drawBandLegend(canvas, options.bands, area.x, legend_y);
   for (const auto& r : options.x_ranges) {
     if (r.label.empty()) continue;
     cv::line(canvas, {area.x + 12, legend_y - 5}, {area.x + 40, legend_y - 5}, r.color, 5);
