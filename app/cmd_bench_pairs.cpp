@@ -62,6 +62,7 @@ struct PairsArgs {
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.experimental.noise);
   bool fix_ratio = false;
   bool always_fit_ratio = false;
+  std::string ratio_evidence = PairCalibrationOptions{}.ratio_evidence.enabled ? "on" : "off";
   double irradiance_kernel_lambda = PairCalibrationOptions{}.irradiance_kernel_lambda;
   bool unweighted_irradiance_kernel = false;
   std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
@@ -279,6 +280,7 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
   options.fit.fit_ratio = !args.fix_ratio;
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
+  options.ratio_evidence.enabled = args.ratio_evidence == "on";
   options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
   options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
@@ -466,6 +468,19 @@ struct PairsRun {
       row.update({{"verdict_G", s.verdict}, {"verdict_reasons_G", r.verdicts.at("G").reasons}});
     }
     if (r.brightness_ratio.count("G")) row["brightness_ratio_G"] = r.brightness_ratio.at("G");
+    if (const RatioEvidence& e = r.ratio_evidence; e.combined)
+      row["ratio_evidence"] = {{"images_over_true", e.images_ratio / c.ratio},
+                               {"images_log_sigma", e.images_log_sigma},
+                               {"resampled_log_sigma", e.resampled_log_sigma},
+                               {"noise_bias_log", e.noise_bias_log},
+                               {"nominal_over_true", e.nominal_ratio / c.ratio},
+                               {"combined_over_true", e.ratio / c.ratio},
+                               {"images_weight", e.images_weight},
+                               {"difference_sigmas", e.conflict_sigmas},
+                               {"decision", toString(e.decision)},
+                               {"brightness_interval_over_true", {e.brightness_low / c.ratio, e.brightness_high / c.ratio}},
+                               {"refitted", r.ratio_from_evidence}};
+    row["ratio_held_small_blur"] = r.ratio_fixed_by_small_blur;
     return s;
   }
 
@@ -655,6 +670,10 @@ const BenchRegistration registration(
           ->capture_default_str()
           ->check(CLI::IsMember({"rising-free", "mean-camera"}));
       command.add_flag("--always-fit-ratio", args->always_fit_ratio, "Fit r even when a sub-pixel blur leaves it undetermined, as calibrate --always-fit-ratio");
+      command.add_option("--ratio-evidence", args->ratio_evidence,
+                         "on: the images' r combined with EXIF by their precisions (as calibrate); off: the images alone")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"on", "off"}));
       command.add_option("--ratio-prior", args->ratio_prior, "Sigma of the EXIF prior on log r (0: r from the images alone)")
           ->capture_default_str()
           ->check(CLI::NonNegativeNumber);

@@ -48,6 +48,8 @@ struct CalibrateArgs {
   bool no_register = false;
   bool fix_ratio = false;
   bool always_fit_ratio = false;
+  std::string ratio_evidence = PairCalibrationOptions{}.ratio_evidence.enabled ? "on" : "off";
+  bool ratio_noise_bias = PairCalibrationOptions{}.ratio_evidence.measure_noise_bias;
   bool no_effects = false;
   double irradiance_kernel_lambda = PairCalibrationOptions{}.irradiance_kernel_lambda;
   bool unweighted_irradiance_kernel = false;
@@ -203,6 +205,8 @@ PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nomi
   options.nominal_ratio_name = args.ratio > 0 ? "--ratio" : "EXIF";
   options.fit.fit_ratio = !args.fix_ratio;
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
+  options.ratio_evidence.enabled = args.ratio_evidence == "on";
+  options.ratio_evidence.measure_noise_bias = args.ratio_noise_bias;
   options.effects.enabled = !args.no_effects;
   options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
@@ -274,6 +278,7 @@ void printCalibration(const CalibrateArgs& args, double nominal_ratio, const Pai
   if (g.ratio_images_only > 0)
     std::printf(" (images alone %.4g; prior sigma %.2g on log r)", g.ratio_images_only, options.fit.ratio_prior_sigma);
   std::printf("\n");
+  if (result.ratio_evidence.combined) std::printf("exposure ratio evidence: %s\n", result.ratio_evidence.summary().c_str());
   if (truth) {
     std::printf("RAW truth (%s, the %s shot):\n%s", truth->file.path.string().c_str(),
                 truth->shot.blurred ? "blurred" : "sharp", truth->result.summary().c_str());
@@ -438,6 +443,15 @@ const CommandRegistration registration(
                          "debias (deconvolution), denoise (bilateral)")
           ->capture_default_str()
           ->check(CLI::IsMember({"jensen", "none", "debias", "denoise"}));
+      command.add_option("--ratio-evidence", args->ratio_evidence,
+                         "on: r from the images combined with the EXIF/--ratio value by their precisions, the images' "
+                         "measured on half-sample refits (a blur that fixes r keeps the images' r; one that does not "
+                         "hands it to EXIF); off: r from the images alone")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"on", "off"}));
+      command.add_flag("--ratio-noise-bias", args->ratio_noise_bias,
+                       "With --ratio-evidence on: also measure the noise bias of the images' r by SIMEX and widen its "
+                       "sigma by it (three more fits of G; measured not to help, docs/RESULTS.md)");
       command.add_option("--ratio-prior", args->ratio_prior,
                          "Fitted r: sigma of the prior on log r around the EXIF/--ratio value, weighed against what the "
                          "blur determines (0: r from the images alone)")

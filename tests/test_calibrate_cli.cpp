@@ -1,4 +1,5 @@
 // crfcal calibrate: end-to-end on the bundled pair, and bad input → one clear line, non-zero exit, no DIR.
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -565,27 +566,40 @@ TEST(CalibrateSmallBlur, RatioIsHeldAtExifUnlessAlwaysFitted) {
 // Real handheld pairs of one phone (../shared/data/pairs/vivo_x6s; skipped without it): the RMS spread of the three
 // green curves over [0, 1] stays below 0.1. A regression guard, not the target (the three agreeing over [0, 1]),
 // which is not met: docs/RESULTS.md#vivo.
-TEST(CalibrateRealPairs, PhonePairsGreenCurvesWithinPointOneRms) {
+// The three vivo pairs' green curves in SHAPE over the intensities all three cover (φ → bφ leaves Eq. 4 unchanged, so
+// each curve is divided by its value at the top of that range): measured 0.035 with r from the evidence
+// (ratio_evidence.hpp), 0.100 with the images' r alone (pairs 2 and 3 fitted r ≈ 2 against EXIF 6.25); the phone's
+// own two-frame brackets (noisy + g_truth) spread 0.043 in the same measure (docs/RESULTS.md#ratio-evidence).
+TEST(CalibrateRealPairs, PhonePairsGreenShapesAgreeOverTheCommonCoveredRange) {
   const fs::path dir = test::sharedData() / "pairs" / "vivo_x6s";
   if (test::sharedData().empty() || !fs::exists(dir)) GTEST_SKIP() << "../shared/data absent";
   std::vector<std::vector<double>> curves;
+  double lo = 0, hi = 1;
   for (int i = 1; i <= 3; ++i) {
     const std::string n = std::to_string(i);
     const io::LoadedPair pair = io::loadPair(dir / ("noisy_" + n + ".jpg"), dir / ("blurred_" + n + ".jpg"));
     ASSERT_TRUE(pair.exif_ratio.has_value());
     PairCalibrationOptions options;
     options.rgb = false;
+    options.band.replicates = 0;
     options.fit.nominal_ratio = pair.exif_ratio->ratio();
     const PairCalibrationResult result = calibratePair(pair.sharp.image, pair.blurred.image, options);
     curves.push_back(result.fits.at("G").inverse_crf);
+    ASSERT_TRUE(result.covered_range.count("G"));
+    lo = std::max(lo, result.covered_range.at("G").first);
+    hi = std::min(hi, result.covered_range.at("G").second);
   }
+  const int n = static_cast<int>(curves[0].size());
+  const int i0 = static_cast<int>(std::ceil(lo * (n - 1))), i1 = static_cast<int>(hi * (n - 1));
+  ASSERT_GT(i1 - i0, n / 4) << "the pairs share too little of the range";
   double spread = 0;
-  for (std::size_t k = 0; k < curves[0].size(); ++k) {
-    const double mean = (curves[0][k] + curves[1][k] + curves[2][k]) / 3;
-    for (const auto& c : curves) spread += (c[k] - mean) * (c[k] - mean) / 3;
+  for (int k = i0; k <= i1; ++k) {
+    double v[3], mean = 0;
+    for (int c = 0; c < 3; ++c) mean += (v[c] = curves[c][k] / curves[c][i1]) / 3;
+    for (const double x : v) spread += (x - mean) * (x - mean) / 3;
   }
-  spread = std::sqrt(spread / curves[0].size());
-  EXPECT_LT(spread, 0.1);
+  spread = std::sqrt(spread / (i1 - i0 + 1));
+  EXPECT_LT(spread, 0.06) << "common covered range " << lo << "-" << hi;
 }
 
 }  // namespace

@@ -1,4 +1,5 @@
 #include "crfcal/channel_verdict.hpp"
+#include "crfcal/ratio_evidence.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -91,7 +92,7 @@ void judgeRatio(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
   // regions' brightness ratio.
   int sources = 0, disagreeing = 0;
   std::string against;
-  if (n > 0 && !e.ratio_fixed && !e.ratio_held_small_blur) {
+  if (n > 0 && !e.ratio_fixed && !e.ratio_held_small_blur && !e.ratio_held_at_nominal) {
     ++sources;
     if (std::abs(std::log(r / n)) > limit) {
       ++disagreeing;
@@ -122,6 +123,14 @@ void judgeRatio(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
                             : "the only independent evidence about r contradicts the curve's r"));
   else if (disagreeing > 0)
     j.find(VerdictLevel::weak, against + beyond + ": the other evidence about r agrees, so one source is off");
+  if (e.ratio_conflict)
+    j.find(VerdictLevel::weak,
+           format("the images' r %.3g and ", e.ratio_images) + e.nominal_source + format(" %.3g differ by %.1f sigma", n, e.ratio_conflict_sigmas) +
+               (e.ratio_held_at_nominal
+                    ? ": the shots' brightness sides with " + e.nominal_source + ", so r is held there (the blur did not fix the curve's exponent)"
+                    : e.ratio_decision == toString(RatioDecision::images_kept)
+                          ? ": the shots' brightness sides with the images, so " + e.nominal_source + " is set aside"
+                          : std::string(": the shots' brightness does not tell which is off; r is their precision-weighted combination")));
   if (e.ratio_held_small_blur)
     j.find(VerdictLevel::weak, "the blur is too small to fix r: held at " + e.nominal_source + format(" %.3g", n) +
                                    format(" (the images alone gave %.3g)", e.ratio_images_small_blur));

@@ -246,28 +246,38 @@ BandAgreement bandAgreement(const std::vector<double>& phi_a, const CurveBand* b
   return agreement;
 }
 
-CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
-                            const CrfFitOptions& fit_options, const CrfFitResult& fit,
-                            std::pair<double, double> covered, const CurveBandOptions& options) {
-  options.check();
-  const auto start = std::chrono::steady_clock::now();
-  const int block = std::max(options.block_size, 2 * std::max(kernel.rows, kernel.cols));
-  const std::vector<cv::Mat> masks =
-      options.replicates > 0 && !fit.pixels.used_mask.empty()
-          ? halfSampleMasks(fit.pixels.used_mask, block, options.replicates, options.seed)
-          : std::vector<cv::Mat>{};
-  std::vector<std::vector<double>> curves;
-  int failed = 0;
+HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
+                                    const CrfFitOptions& fit_options, const cv::Mat& used_mask, int replicates,
+                                    int block_size, std::uint64_t seed) {
+  HalfSampleRefits refits;
+  const int block = std::max(block_size, 2 * std::max(kernel.rows, kernel.cols));
+  const std::vector<cv::Mat> masks = replicates > 0 && !used_mask.empty()
+                                         ? halfSampleMasks(used_mask, block, replicates, seed)
+                                         : std::vector<cv::Mat>{};
   for (const cv::Mat& mask : masks) {
     CrfFitOptions o = fit_options;
     o.pixel_selection = mask;
     o.progress = nullptr;
     try {
-      curves.push_back(fitInverseCrf(sharp, blurred, kernel, o).inverse_crf);
+      const CrfFitResult fit = fitInverseCrf(sharp, blurred, kernel, o);
+      refits.curves.push_back(fit.inverse_crf);
+      refits.ratios.push_back(fit.ratio);
     } catch (const InvalidInput&) {
-      ++failed;  // a half without enough edge pixels: the band rests on the others
+      ++refits.failed;  // a half without enough edge pixels: the estimate rests on the others
     }
   }
+  return refits;
+}
+
+CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
+                            const CrfFitOptions& fit_options, const CrfFitResult& fit,
+                            std::pair<double, double> covered, const CurveBandOptions& options) {
+  options.check();
+  const auto start = std::chrono::steady_clock::now();
+  const HalfSampleRefits refits = refitOnHalfSamples(sharp, blurred, kernel, fit_options, fit.pixels.used_mask,
+                                                     options.replicates, options.block_size, options.seed);
+  const std::vector<std::vector<double>>& curves = refits.curves;
+  const int failed = refits.failed;
   std::vector<std::vector<double>> alternatives;
   for (const auto& candidate : fit.candidates)
     if (candidate.valid && candidate.kind != fit.chosen && !candidate.inverse_crf.empty())

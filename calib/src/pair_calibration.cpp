@@ -24,6 +24,7 @@ void PairCalibrationOptions::check() const {
   effects.check();
   band.check();
   verdict.check();
+  ratio_evidence.check();
   chroma_detail.check();
   for (const ChromaSubsampling& c : {sharp_chroma, sharp_stored_chroma})
     if (c.h < 1 || c.v < 1 || c.h > 4 || c.v > 4) throw InvalidInput("chroma sampling factors must be 1..4");
@@ -75,6 +76,7 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   }
   detail::chooseFitWindow(state);
   detail::fitKernelPhiRounds(state);
+  detail::combineRatioWithNominal(state);
   if (options.effects.enabled) detail::diagnoseResidualEffects(state);
   detail::computeVerdict(state);
   if (options.band.replicates > 0) detail::estimateBands(state);

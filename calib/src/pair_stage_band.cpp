@@ -13,13 +13,17 @@ void estimateBands(PairCalibrationState& state) {
   PairCalibrationResult& result = state.result;
   const auto start = Clock::now();
   const cv::Mat kernel = cropKernel(state.kernel, 0.0);  // as fitChannel hands it to the fitter
+  // r held at the combination of the images and EXIF (ratio_evidence.hpp) is still uncertain: the refits fit it
+  // again (from the combined value), so that its spread stays in the band. A user's --fix-ratio stays fixed.
+  CrfFitOptions fit_options = state.fit_options;
+  if (result.ratio_from_evidence) fit_options.fit_ratio = true;
   int done = 0;
   for (const auto& name : result.channels) {
     const auto covered = result.covered_range.find(name);
     if (covered == result.covered_range.end() || !result.fits.count(name)) continue;
     state.report("band", double(done++) / result.channels.size(), name);
     result.bands[name] = estimateCurveBand(state.window_sharp.at(name), state.window_blurred.at(name), kernel,
-                                           state.fit_options, result.fits.at(name), covered->second,
+                                           fit_options, result.fits.at(name), covered->second,
                                            state.options.band);
   }
   result.timings["band"] = secondsSince(start);

@@ -22,7 +22,7 @@ void diagnoseResidualEffects(PairCalibrationState& state) {
   ei.fits = result.fits;
   ei.kernel = state.kernel;
   ei.kernel_estimated = result.kernel_estimated;
-  ei.nominal_ratio = fit_options.nominal_ratio;
+  ei.nominal_ratio = options.fit.nominal_ratio;  // EXIF / --ratio (fit_options' may hold the combined r)
   ei.centre = cv::Point2d((state.sharp.cols - 1) / 2.0 - window.x, (state.sharp.rows - 1) / 2.0 - window.y);
   ei.corner_radius = 0.5 * std::hypot(state.sharp.cols, state.sharp.rows);
   ei.valid = state.overlap(window);

@@ -113,6 +113,8 @@ void channelWarnings(PairCalibrationState& state, const std::string& name, const
   }
 }
 
+}  // namespace
+
 // The brightness ratio of the two shots in channel `name`: the measurement of `crfcal study ratio`
 // (estimateExposureRatio by quantile matching with the EMoR mean curve), independent of the fit. Quantiles, not
 // per-pixel ratios: the blur moves pixels but keeps the brightness distribution's bulk, and the per-pixel ratio of
@@ -141,6 +143,8 @@ double brightnessRatio(const PairCalibrationState& state, const std::string& nam
   }
 }
 
+namespace {
+
 // The verdict per channel from the final fits, the flat regions, the covered ranges and the refit guard.
 void judgeChannelsOfPair(PairCalibrationState& state) {
   PairCalibrationResult& result = state.result;
@@ -152,11 +156,18 @@ void judgeChannelsOfPair(PairCalibrationState& state) {
     ChannelEvidence e;
     e.channel = name;
     e.ratio = fit.ratio;
-    e.nominal_ratio = state.fit_options.nominal_ratio;
+    e.nominal_ratio = options.fit.nominal_ratio;
     e.nominal_source = options.nominal_ratio_name;
     e.ratio_fixed = !options.fit.fit_ratio;
     e.ratio_held_small_blur = result.ratio_fixed_by_small_blur;
     e.ratio_images_small_blur = result.ratio_images_small_blur;
+    if (const RatioEvidence& re = result.ratio_evidence; re.combined) {
+      e.ratio_conflict = re.conflict;
+      e.ratio_images = re.images_ratio;
+      e.ratio_conflict_sigmas = re.conflict_sigmas;
+      e.ratio_held_at_nominal = result.ratio_from_evidence && re.decision == RatioDecision::nominal_held;
+      if (re.conflict) e.ratio_decision = toString(re.decision);
+    }
     const double brightness = brightnessRatio(state, name);
     if (brightness > 0) result.brightness_ratio[name] = e.brightness_ratio = brightness;
     if (result.covered_range.count(name)) e.covered = result.covered_range.at(name);

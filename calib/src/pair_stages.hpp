@@ -7,6 +7,7 @@
 //                                            kernel-aware registration refinement
 //   fit window       pair_stage_fit.cpp      the window handed to the φ fit (Eq. 21–25) and the per-channel fit
 //   kernel↔φ rounds  pair_stage_rounds.cpp   φ_G, the small-blur hold of r, K re-estimated in the irradiance domain
+//   ratio evidence   pair_stage_ratio.cpp    the images' r combined with EXIF / --ratio (ratio_evidence.hpp)
 //   effects          pair_stage_effects.cpp  named effects on the residuals (effects.hpp)
 //   verdict          pair_stage_verdict.cpp  Γ map (Sec. 3), weights, warnings and the data's covered range
 //   band             pair_stage_band.cpp     the pointwise band of φ (curve_band.hpp) over the covered range
@@ -134,11 +135,17 @@ CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& na
 // ---- kernel↔φ rounds (pair_stage_rounds.cpp)
 void fitKernelPhiRounds(PairCalibrationState& state);
 
+// ---- ratio evidence (pair_stage_ratio.cpp): r combined with the nominal ratio; all channels refitted when it moves
+void combineRatioWithNominal(PairCalibrationState& state);
+
 // ---- effects (pair_stage_effects.cpp)
 void diagnoseResidualEffects(PairCalibrationState& state);
 
 // ---- verdict (pair_stage_verdict.cpp)
 void computeVerdict(PairCalibrationState& state);
+// The shots' brightness ratio in channel `name` over the fit window (quantile matching with the EMoR mean curve, as
+// `crfcal study ratio`); 0 when too few usable levels.
+double brightnessRatio(const PairCalibrationState& state, const std::string& name);
 
 // ---- band (pair_stage_band.cpp): the pointwise band of φ per channel over its covered range (curve_band.hpp)
 void estimateBands(PairCalibrationState& state);

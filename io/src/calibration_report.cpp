@@ -69,7 +69,25 @@ void addExposureRatio(const PairCalibrationResult& result, const CalibrationRepo
                                        {"blurred", pair.blurred.exposure.summary()}};
   extra["exposure_ratio_mode"] = context.ratio_fixed_by_option        ? "fixed (--fix-ratio)"
                                  : result.ratio_fixed_by_small_blur ? "fixed (blur too small to determine r)"
+                                 : result.ratio_from_evidence       ? "combined (images and nominal ratio)"
                                                                     : "fitted";
+  // The images' r combined with the nominal ratio (ratio_evidence.hpp): both sources with their σ in log r.
+  if (const RatioEvidence& e = result.ratio_evidence; e.combined)
+    extra["exposure_ratio_evidence"] = {{"ratio", e.ratio},
+                                        {"log_sigma", e.log_sigma},
+                                        {"images_ratio", e.images_ratio},
+                                        {"images_log_sigma", e.images_log_sigma},
+                                        {"images_resampled_log_sigma", e.resampled_log_sigma},
+                                        {"images_noise_bias_log", e.noise_bias_log},
+                                        {"images_replicate_ratios", e.replicate_ratios},
+                                        {"nominal_ratio", e.nominal_ratio},
+                                        {"nominal_log_sigma", e.nominal_log_sigma},
+                                        {"images_weight", e.images_weight},
+                                        {"difference_sigmas", e.conflict_sigmas},
+                                        {"conflict", e.conflict},
+                                        {"brightness_interval", {e.brightness_low, e.brightness_high}},
+                                        {"decision", toString(e.decision)},
+                                        {"refitted", result.ratio_from_evidence}};
   extra["exposure_ratio_per_channel"] = json::object();
   extra["ambiguity_rise"] = json::object();  // CrfFitResult::ambiguity_rise per channel
   for (const auto& [name, fit] : result.fits) {

@@ -10,6 +10,8 @@
 //  * r on the wrong side of 1: EXIF gives the blurred shot more light (beyond EXIF's tolerance) but r < 1, or the
 //    mirror case → unreliable (a physical impossibility, not a matter of precision).
 //  * r held at EXIF because the blur was too small to fix it (pair_calibration.hpp): the images disagreed → weak.
+//  * the images' r and the nominal ratio contradict each other beyond their precisions (ratio_evidence.hpp) → weak,
+//    saying which source the shots' brightness sided with.
 //  * r consistent across channels: r is a property of the exposure (time, ISO, aperture), the same for every
 //    channel; a channel outside a band of ±max_channel_ratio_spread/2 (in log) around the channels' median r → weak.
 //  * the covered range: data spanning less than min_covered_span of the intensities → weak (φ is mostly
@@ -85,6 +87,14 @@ struct ChannelEvidence {
   bool ratio_fixed = false;            // r was not fitted (--fix-ratio): r = nominal_ratio by construction
   bool ratio_held_small_blur = false;  // r held at the nominal ratio because the blur was too small
   double ratio_images_small_blur = 0;  // then: the r of the free fit
+  // The images' r against the nominal ratio (ratio_evidence.hpp): their difference beyond the conflict threshold,
+  // and what was decided. A conflict makes the channel weak whatever was decided: one source is wrong, and with
+  // nominal_held the curve's exponent rests on EXIF, not on the blur.
+  bool ratio_conflict = false;
+  std::string ratio_decision;          // toString(RatioDecision) when a conflict was decided; empty otherwise
+  bool ratio_held_at_nominal = false;  // r = nominal_ratio by that decision (the EXIF comparison says nothing)
+  double ratio_images = 0;             // the images' r (the free fit)
+  double ratio_conflict_sigmas = 0;    // their difference in σ
   double brightness_ratio = 0;               // the shots' brightness ratio (quantile matching, EMoR mean curve); ≤ 0: not measured
   std::optional<std::pair<double, double>> covered;  // intensities the data constrain
   std::vector<double> inverse_crf;     // φ(i/(n−1)) as reported

@@ -79,6 +79,20 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
                              std::pair<double, double> covered, const CurveBandOptions& options = {},
                              const std::vector<std::vector<double>>& alternatives = {});
 
+// Refits of φ on `replicates` half-samples of the blocks (side max(block_size, twice the kernel's side)) holding
+// `used_mask`'s pixels, in complementary pairs, with the same images, kernel and fit options
+// (CrfFitOptions::pixel_selection). For a half-sample Var(θ_half − θ_full) ≈ Var(θ_full), so the refits' deviations
+// from the full fit estimate its sampling spread: of φ (the band) and of r (ratio_evidence.hpp). Halves without
+// enough edge pixels are counted in `failed`. Fewer than 4 blocks: no refits.
+struct HalfSampleRefits {
+  std::vector<std::vector<double>> curves;  // φ of each successful refit, kCurveSamples samples
+  std::vector<double> ratios;               // r of each successful refit
+  int failed = 0;
+};
+HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
+                                    const CrfFitOptions& fit_options, const cv::Mat& used_mask, int replicates,
+                                    int block_size, std::uint64_t seed);
+
 // Refits φ on `options.replicates` half-samples of the blocks that hold `fit`'s used pixels (fit.pixels.used_mask)
 // with the same images, kernel and fit options (CrfFitOptions::pixel_selection), then bandFromReplicates.
 CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,

@@ -20,6 +20,7 @@
 #include "crfcal/chroma_subsampling.hpp"
 #include "crfcal/crf_fitter.hpp"
 #include "crfcal/curve_band.hpp"
+#include "crfcal/ratio_evidence.hpp"
 #include "crfcal/effects.hpp"
 #include "crfcal/kernel_estimation.hpp"
 #include "crfcal/registration.hpp"
@@ -77,6 +78,9 @@ struct PairCalibrationOptions {
   CurveBandOptions band;             // the pointwise band of φ per channel (curve_band.hpp); replicates = 0: none
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
   VerdictOptions verdict;            // the per-channel verdict's thresholds (channel_verdict.hpp)
+  // r from the images combined with the nominal ratio by their precisions (ratio_evidence.hpp), after the
+  // kernel↔φ rounds; enabled = false: r from the images alone.
+  RatioEvidenceOptions ratio_evidence;
   std::string nominal_ratio_name = "EXIF";  // how the verdict's reasons name fit.nominal_ratio ("EXIF", "--ratio")
   std::function<void(const std::string& stage, double fraction, const std::string& detail)> progress;
   void check() const;                // throws InvalidInput
@@ -106,6 +110,10 @@ struct PairCalibrationResult {
   double blur_radius = 0;                // RMS radius of the final kernel about its centroid, pixels
   bool ratio_fixed_by_small_blur = false;  // r held at EXIF/--ratio (fix_ratio_when_blur_is_small)
   double ratio_images_small_blur = 0;      // then: the r of the first, free fit that disagreed
+  // r from the images and the nominal ratio combined (options.ratio_evidence); ratio_from_evidence: the fits were
+  // redone with r held at evidence.ratio (it moved r by more than min_relative_change).
+  RatioEvidence ratio_evidence;
+  bool ratio_from_evidence = false;
   std::map<std::string, std::pair<double, double>> covered_range;  // per channel: intensities the data constrain
   cv::Rect fit_window;                   // region handed to the fitter (full-resolution coordinates)
   cv::Mat gamma_map;                     // Γ = B − I ⊗ K on G inside fit_window (CV_64F)
