@@ -6,6 +6,7 @@
 #include <cstdio>
 
 #include <opencv2/core/utility.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
@@ -14,45 +15,32 @@ namespace crfcal {
 namespace {
 
 // ---- spectra -------------------------------------------------------------------------------------------------
+// Real DFTs in OpenCV's packed CCS layout (half the spectrum; cv::mulSpectrums / cv::divSpectrums understand it).
+// Spectra of real, even operators (|K̂|², |D̂|², the u-step's denominator) have zero imaginary parts there, so a
+// product or quotient with them acts on real and imaginary parts alike.
 
 cv::Mat spectrum(const cv::Mat& real) {
-  cv::Mat complex;
-  cv::dft(real, complex, cv::DFT_COMPLEX_OUTPUT);
-  return complex;
+  cv::Mat packed;
+  cv::dft(real, packed);
+  return packed;
 }
 
-cv::Mat realInverse(const cv::Mat& complex) {
+cv::Mat realInverse(const cv::Mat& packed) {
   cv::Mat real;
-  cv::dft(complex, real, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
+  cv::dft(packed, real, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
   return real;
 }
 
-// a · b (conjugate_b: a · conj(b)), element-wise on 2-channel spectra.
+// a · b (conjugate_b: a · conj(b)), element-wise on packed spectra.
 cv::Mat multiply(const cv::Mat& a, const cv::Mat& b, bool conjugate_b = false) {
   cv::Mat product;
   cv::mulSpectrums(a, b, product, 0, conjugate_b);
   return product;
 }
 
-cv::Mat squaredMagnitude(const cv::Mat& complex) {
-  cv::Mat parts[2];
-  cv::split(complex, parts);
-  return parts[0].mul(parts[0]) + parts[1].mul(parts[1]);
-}
-
-cv::Mat divideByReal(const cv::Mat& complex, const cv::Mat& real) {
-  cv::Mat parts[2];
-  cv::split(complex, parts);
-  parts[0] /= real;
-  parts[1] /= real;
-  cv::Mat quotient;
-  cv::merge(parts, 2, quotient);
-  return quotient;
-}
-
 // The spectrum of the circular operator u ↦ Σ_d P(d) u(p − d) that equals crfcal::convolve in the interior:
 // convolve(u)(p) = Σ_q K(q) u(p − q + c) with c = (cols/2, rows/2), i.e. P(d) = K(c + d), d taken modulo the size.
-cv::Mat kernelSpectrum(const cv::Mat& kernel, cv::Size size) {
+cv::Mat kernelSpectrum(const cv::Mat& kernel, cv::Size size, int depth) {
   cv::Mat psf = cv::Mat::zeros(size, CV_64F);
   const int cx = kernel.cols / 2, cy = kernel.rows / 2;
   for (int y = 0; y < kernel.rows; ++y)
@@ -61,30 +49,48 @@ cv::Mat kernelSpectrum(const cv::Mat& kernel, cv::Size size) {
       const int px = ((x - cx) % size.width + size.width) % size.width;
       psf.at<double>(py, px) += kernel.at<double>(y, x);
     }
+  psf.convertTo(psf, depth);
   return spectrum(psf);
 }
 
 // Forward differences with wrap-around (the circular gradient whose adjoint FTVd's FFT solve assumes):
 // (Dx u)(p) = u(p + eₓ) − u(p); as an operator P(0) = −1, P(−eₓ) = 1.
-cv::Mat differenceSpectrum(cv::Size size, bool along_x) {
+cv::Mat differenceSpectrum(cv::Size size, bool along_x, int depth) {
   cv::Mat psf = cv::Mat::zeros(size, CV_64F);
   psf.at<double>(0, 0) = -1;
   if (along_x) psf.at<double>(0, size.width - 1) = 1;
   else psf.at<double>(size.height - 1, 0) = 1;
+  psf.convertTo(psf, depth);
   return spectrum(psf);
 }
 
-cv::Mat forwardDifference(const cv::Mat& u, bool along_x) {
-  cv::Mat shifted(u.size(), u.type());
-  if (along_x) {
-    u.colRange(1, u.cols).copyTo(shifted.colRange(0, u.cols - 1));
-    u.col(0).copyTo(shifted.col(u.cols - 1));
-  } else {
-    u.rowRange(1, u.rows).copyTo(shifted.rowRange(0, u.rows - 1));
-    u.row(0).copyTo(shifted.row(u.rows - 1));
-  }
-  return shifted - u;
+// The packed spectrum of the identity operator: ones at every frequency (real), zero imaginary parts.
+cv::Mat identitySpectrum(cv::Size size, int depth) {
+  cv::Mat delta = cv::Mat::zeros(size, depth);
+  cv::Mat(1, 1, CV_64F, cv::Scalar(1)).convertTo(delta(cv::Rect(0, 0, 1, 1)), depth);
+  return spectrum(delta);
 }
+
+// u shifted by one pixel with wrap-around: result(p) = u(p + step), step = +1 (next) or −1 (previous) along x or y.
+cv::Mat shifted(const cv::Mat& u, bool along_x, int step) {
+  cv::Mat out(u.size(), u.type());
+  const int n = along_x ? u.cols : u.rows;
+  const auto part = [&](const cv::Mat& m, int from, int to) { return along_x ? m.colRange(from, to) : m.rowRange(from, to); };
+  if (step > 0) {
+    part(u, 1, n).copyTo(part(out, 0, n - 1));
+    part(u, 0, 1).copyTo(part(out, n - 1, n));
+  } else {
+    part(u, 0, n - 1).copyTo(part(out, 1, n));
+    part(u, n - 1, n).copyTo(part(out, 0, 1));
+  }
+  return out;
+}
+
+cv::Mat forwardDifference(const cv::Mat& u, bool along_x) { return shifted(u, along_x, +1) - u; }
+
+// The adjoint of forwardDifference: (Dxᵀ g)(p) = g(p − eₓ) − g(p). Computing Dᵀw here instead of through two
+// spectra saves two FFTs per u-step.
+cv::Mat differenceAdjoint(const cv::Mat& g, bool along_x) { return shifted(g, along_x, -1) - g; }
 
 // ---- padding -------------------------------------------------------------------------------------------------
 
@@ -129,20 +135,27 @@ cv::Mat reflectPad(const cv::Mat& image, const Padding& padding) {
 // ---- solvers -------------------------------------------------------------------------------------------------
 
 cv::Mat wienerSolve(const cv::Mat& f, const cv::Mat& kernel_spectrum, double nsr) {
-  const cv::Mat denominator = squaredMagnitude(kernel_spectrum) + nsr;
-  return realInverse(divideByReal(multiply(spectrum(f), kernel_spectrum, true), denominator));
+  const cv::Mat denominator = multiply(kernel_spectrum, kernel_spectrum, true) + nsr * identitySpectrum(f.size(), f.depth());
+  cv::Mat quotient;
+  cv::divSpectrums(multiply(spectrum(f), kernel_spectrum, true), denominator, quotient, 0);
+  return realInverse(quotient);
 }
 
 // FTVd (Wang et al. 2008, Alg. 1 with continuation) with the masked data term minimised by MM (see header).
+// Per u-step: one forward FFT (of Dᵀw, formed in the image domain) and one inverse (u); per β two more for the MM
+// fill ḟ = M f + (1 − M) K ⊗ u. Refreshing ḟ once per β instead of every u-step keeps MM's descent (each u-step
+// lowers the surrogate fixed at the fill, which majorises the masked objective).
 cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const cv::Mat& kernel_spectrum,
                             const DeconvolutionOptions& options, int* iterations) {
   const cv::Size size = f.size();
-  const cv::Mat dx_spectrum = differenceSpectrum(size, true), dy_spectrum = differenceSpectrum(size, false);
-  const cv::Mat gradient_energy = squaredMagnitude(dx_spectrum) + squaredMagnitude(dy_spectrum);
-  const cv::Mat kernel_energy = squaredMagnitude(kernel_spectrum);
+  const int depth = f.depth();
+  const cv::Mat dx = differenceSpectrum(size, true, depth), dy = differenceSpectrum(size, false, depth);
+  const cv::Mat gradient_energy = multiply(dx, dx, true) + multiply(dy, dy, true);
+  const cv::Mat kernel_energy = multiply(kernel_spectrum, kernel_spectrum, true);
+  const cv::Mat identity = identitySpectrum(size, depth);
   const bool masked = cv::countNonZero(mask) < mask.rows * mask.cols;
   cv::Mat inverse_mask;
-  mask.convertTo(inverse_mask, CV_64F, -1.0 / 255, 1.0);  // 1 − M
+  mask.convertTo(inverse_mask, depth, -1.0 / 255, 1.0);  // 1 − M
 
   cv::Mat u = f.clone();
   cv::Mat data_spectrum = multiply(spectrum(f), kernel_spectrum, true);  // conj(K̂) · F(ḟ)
@@ -150,25 +163,21 @@ cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const cv::Mat
   int steps = 0;
   for (double beta = options.beta_start; beta <= options.beta_max * (1 + 1e-12); beta *= options.beta_factor) {
     const double ratio = options.lambda / beta;
-    const cv::Mat denominator = gradient_energy + ratio * kernel_energy;
+    cv::Mat reciprocal;  // 1 / (|D̂x|² + |D̂y|² + λ/β |K̂|²)
+    cv::divSpectrums(identity, gradient_energy + ratio * kernel_energy, reciprocal, 0);
     for (int inner = 0; inner < options.inner_iterations; ++inner) {
+      if (masked) {  // MM: masked-out data replaced by the current prediction K ⊗ u
+        const cv::Mat prediction = realInverse(multiply(u_spectrum, kernel_spectrum));
+        data_spectrum = multiply(spectrum(f + inverse_mask.mul(prediction - f)), kernel_spectrum, true);
+      }
       // w-step: isotropic shrinkage of ∇u by 1/β
       cv::Mat gx = forwardDifference(u, true), gy = forwardDifference(u, false);
       cv::Mat magnitude;
       cv::magnitude(gx, gy, magnitude);
-      cv::Mat scale = cv::max(magnitude - 1.0 / beta, 0.0) / cv::max(magnitude, 1e-12);
-      gx = gx.mul(scale);
-      gy = gy.mul(scale);
-      // MM: masked-out data replaced by the current prediction K ⊗ u
-      if (masked) {
-        const cv::Mat prediction = realInverse(multiply(u_spectrum, kernel_spectrum));
-        const cv::Mat f_filled = f + inverse_mask.mul(prediction - f);
-        data_spectrum = multiply(spectrum(f_filled), kernel_spectrum, true);
-      }
+      const cv::Mat scale = cv::max(magnitude - 1.0 / beta, 0.0) / cv::max(magnitude, 1e-12);
+      const cv::Mat adjoint = differenceAdjoint(gx.mul(scale), true) + differenceAdjoint(gy.mul(scale), false);
       // u-step: (DᵀD + λ/β KᵀK) u = Dᵀw + λ/β Kᵀḟ, diagonal in Fourier
-      cv::Mat numerator = multiply(spectrum(gx), dx_spectrum, true) + multiply(spectrum(gy), dy_spectrum, true) +
-                          ratio * data_spectrum;
-      u_spectrum = divideByReal(numerator, denominator);
+      u_spectrum = multiply(spectrum(adjoint) + ratio * data_spectrum, reciprocal);
       const cv::Mat next = realInverse(u_spectrum);
       const double change = cv::norm(next, u, cv::NORM_L2) / std::max(cv::norm(next, cv::NORM_L2), 1e-12);
       u = next;
@@ -239,12 +248,13 @@ cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const 
   if (!data_mask.empty() && data_mask.size() != observed.size())
     throw InvalidInput("deconvolution mask and image differ in size");
   const cv::Mat k = normalizeKernel(kernel);
+  const int depth = options.single_precision ? CV_32F : CV_64F;
   cv::Mat f;
-  observed.convertTo(f, CV_64F);
+  observed.convertTo(f, depth);
 
   const Padding padding = choosePadding(f.size(), k);
   const cv::Mat padded = reflectPad(f, padding);
-  const cv::Mat kernel_spectrum = kernelSpectrum(k, padding.padded);
+  const cv::Mat kernel_spectrum = kernelSpectrum(k, padding.padded, depth);
   cv::Mat u;
   if (options.method == DeconvolutionMethod::Wiener) {
     u = wienerSolve(padded, kernel_spectrum, options.wiener_nsr);
@@ -255,7 +265,9 @@ cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const 
     else cv::Mat(data_mask != 0).copyTo(mask(padding.interior()));
     u = totalVariationSolve(padded, mask, kernel_spectrum, options, iterations);
   }
-  return u(padding.interior()).clone();
+  cv::Mat result;
+  u(padding.interior()).convertTo(result, CV_64F);
+  return result;
 }
 
 DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, const std::vector<ResponseCurve>& curves,
