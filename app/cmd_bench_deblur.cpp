@@ -2,6 +2,8 @@
 // to --size px for speed) × the Levin kernels × response curves (gamma 2.2 and real camera curves) are blurred in
 // irradiance (B = ψ(φ(I) ⊗ K), 8-bit, no noise) and deblurred with the true kernel and the true φ, once in the
 // intensity domain (B directly) and once in irradiance (φ(B), deconvolve, ψ). Prints the mean PSNR per curve.
+#include <sys/resource.h>
+
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -10,6 +12,7 @@
 #include <vector>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
 #include "crfcal/blur_model.hpp"
@@ -36,6 +39,15 @@ struct DeblurBenchArgs {
   std::string json;
   bool force = false;  // --json over a file crfcal did not write (never deletes it)
   bool per_case = false;
+  bool speed = false;               // only the speed measurement (a large RGB image)
+  int speed_width = 4000, speed_height = 3000;
+  int tile_size = DeconvolutionOptions{}.tile_size;
+  double beta_factor = DeconvolutionOptions{}.beta_factor;
+  int inner_iterations = DeconvolutionOptions{}.inner_iterations;
+  bool double_precision = false;
+  bool bregman = false;
+  double beta_start = DeconvolutionOptions{}.beta_start;
+  double beta_max = DeconvolutionOptions{}.beta_max;
 };
 
 struct Means {
@@ -54,16 +66,91 @@ cv::Mat centreCrop(const cv::Mat& image, int size) {
   return image(cv::Rect((image.cols - size) / 2, (image.rows - size) / 2, size, size)).clone();
 }
 
+DeconvolutionOptions optionsOf(const DeblurBenchArgs& args) {
+  DeconvolutionOptions options;
+  options.method = parseDeconvolutionMethod(args.method);
+  options.lambda = args.lambda;
+  options.tile_size = args.tile_size;
+  options.beta_factor = args.beta_factor;
+  options.inner_iterations = args.inner_iterations;
+  options.single_precision = !args.double_precision;
+  options.bregman = args.bregman;
+  options.beta_start = args.beta_start;
+  options.beta_max = args.beta_max;
+  options.check();
+  return options;
+}
+
+// A colour scene of `size`: im1, im2, im3 of the Levin set as B, G, R, each mirror-tiled at its own scale (the
+// detail density of a photo, not of a 16x upscale).
+cv::Mat tiledScene(const fs::path& samples, cv::Size size) {
+  std::vector<cv::Mat> planes;
+  for (int i = 1; i <= 3; ++i) {
+    const cv::Mat image = io::readGrayUnit(samples / "levin09" / ("im" + std::to_string(i) + ".png"));
+    cv::Mat tiled = image;
+    while (tiled.cols < size.width || tiled.rows < size.height) {  // each pass doubles it (mirrored copies)
+      cv::Mat grown;
+      cv::copyMakeBorder(tiled, grown, 0, tiled.rows, 0, tiled.cols, cv::BORDER_REFLECT);
+      tiled = grown;
+    }
+    planes.push_back(tiled(cv::Rect({0, 0}, size)).clone());
+  }
+  cv::Mat scene;
+  cv::merge(planes, scene);
+  return scene;
+}
+
+// A 25×25 motion kernel: a 2 px wide diagonal stroke (the "25 px kernel").
+cv::Mat strokeKernel25() {
+  cv::Mat kernel = cv::Mat::zeros(25, 25, CV_64F);
+  cv::line(kernel, {2, 20}, {22, 4}, cv::Scalar(1), 2);
+  return kernel / cv::sum(kernel)[0];
+}
+
+// The speed target: deblur a 12 MP RGB image (gamma 2.2, irradiance domain) and report wall time and the
+// process's peak resident memory (getrusage; it includes the scene's synthesis).
+int runSpeedBench(const DeblurBenchArgs& args, const DeconvolutionOptions& base) {
+  const cv::Size size(args.speed_width, args.speed_height);
+  const ResponseCurve curve(io::parseResponseSpec("gamma:2.2"));
+  const cv::Mat kernel = strokeKernel25();
+  const cv::Mat sharp = tiledScene(io::samplesDirectory(), size);
+  std::vector<cv::Mat> planes;
+  cv::split(sharp, planes);
+  for (cv::Mat& plane : planes) plane = quantize(irradianceBlur(plane, curve, kernel), 8);
+  cv::Mat blurred, blurred8;
+  cv::merge(planes, blurred);
+  blurred.convertTo(blurred8, CV_8UC3, 255.0);  // what a camera hands over
+  DeconvolutionOptions options = base;
+  options.domain = DeconvolutionDomain::Irradiance;
+  std::printf("speed: %dx%d RGB (%.1f MP), 25x25 kernel, %s in the irradiance domain, %d threads\n", size.width,
+              size.height, size.area() / 1e6, toString(options.method), cv::getNumThreads());
+  const auto cpuSeconds = [] {
+    rusage usage{};
+    getrusage(RUSAGE_SELF, &usage);
+    return usage.ru_utime.tv_sec + usage.ru_stime.tv_sec + 1e-6 * (usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+  };
+  const double cpu_start = cpuSeconds();
+  const auto start = std::chrono::steady_clock::now();
+  const DeconvolutionResult result = deconvolve(blurred8, kernel, {curve}, options);
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double cpu = cpuSeconds() - cpu_start;
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  std::printf("%s\n", result.summary().c_str());
+  std::printf("wall %.1f s, CPU %.1f s, peak RSS %.0f MB; PSNR blurred %.2f dB, deblurred %.2f dB (%d px from the "
+              "border)\n", wall, cpu, usage.ru_maxrss / 1024.0, psnr(blurred, sharp, 40),
+              psnr(result.deblurred, sharp, 40), 40);
+  return kExitOk;
+}
+
 int runDeblurBench(const DeblurBenchArgs& args) {
   const fs::path samples = io::samplesDirectory();
   std::vector<std::string> curves = args.curves;
   if (curves.empty())
     curves = {"gamma:2.2", "table:" + (samples / "camera_curves" / "NikonD70.csv").string(),
               "table:" + (samples / "camera_curves" / "CanonEOS1DsMarkII.csv").string()};
-  DeconvolutionOptions options;
-  options.method = parseDeconvolutionMethod(args.method);
-  options.lambda = args.lambda;
-  options.check();
+  DeconvolutionOptions options = optionsOf(args);
+  if (args.speed) return runSpeedBench(args, options);
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, {"bench deblur", {}, args.force});  // before the work
 
   std::vector<cv::Mat> images;
@@ -133,6 +220,17 @@ const BenchRegistration registration(
       command.add_option("--method", args->method, "tv or wiener")->check(CLI::IsMember({"tv", "wiener"}));
       command.add_option("--lambda", args->lambda, "TV data weight")->check(CLI::PositiveNumber);
       command.add_flag("--per-case", args->per_case, "Print one row per image and kernel");
+      command.add_flag("--speed", args->speed,
+                       "Only time a large RGB image (--speed-width x --speed-height, default 12 MP): wall s, peak RSS");
+      command.add_option("--speed-width", args->speed_width, "Width of the --speed image")->check(CLI::Range(64, 12000));
+      command.add_option("--speed-height", args->speed_height, "Height of the --speed image")->check(CLI::Range(64, 12000));
+      command.add_option("--tile-size", args->tile_size, "FFT tile size (0: whole images)")->check(CLI::Range(0, 16384));
+      command.add_option("--beta-factor", args->beta_factor, "TV continuation factor of beta")->check(CLI::Range(1.01, 64.0));
+      command.add_option("--inner", args->inner_iterations, "TV u/w alternations per beta")->check(CLI::Range(1, 100));
+      command.add_flag("--bregman", args->bregman, "ADMM multipliers in the TV solver");
+      command.add_option("--beta-start", args->beta_start, "First beta")->check(CLI::PositiveNumber);
+      command.add_option("--beta-max", args->beta_max, "Last beta")->check(CLI::PositiveNumber);
+      command.add_flag("--double", args->double_precision, "CV_64F DFTs (the reference) instead of CV_32F");
       command.add_option("--json", args->json, "Write every case to this JSON file (atomic)");
       command.add_flag("--force", args->force, kForceHelp);
       return [args] { return runDeblurBench(*args); };
