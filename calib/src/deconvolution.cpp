@@ -244,7 +244,7 @@ std::vector<Tile> planTiles(cv::Size image, const cv::Mat& kernel, const Deconvo
   return tiles;
 }
 
-// Deconvolves observed(tile.data) (CV_32F or CV_64F) and writes its tile.core into `result` (CV_64F).
+// Deconvolves observed(tile.data) (CV_32F or CV_64F) and writes its tile.core into `result`.
 void deconvolveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv::Mat& kernel, const Tile& tile,
                     const DeconvolutionOptions& options, cv::Mat& result, int* iterations) {
   const int depth = options.single_precision ? CV_32F : CV_64F;
@@ -265,7 +265,8 @@ void deconvolveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv:
   }
   const cv::Rect core_in_u(padding.left + tile.core.x - tile.data.x, padding.top + tile.core.y - tile.data.y,
                            tile.core.width, tile.core.height);
-  u(core_in_u).convertTo(result(tile.core), CV_64F);
+  cv::Mat target = result(tile.core);
+  u(core_in_u).convertTo(target, result.depth());
 }
 
 }  // namespace
@@ -342,7 +343,7 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   const bool irradiance = options.domain == DeconvolutionDomain::Irradiance;
   const int depth = options.single_precision ? CV_32F : CV_64F;
   std::vector<cv::Mat> planes;
-  cv::split(toUnitDouble(blurred), planes);
+  cv::split(blurred, planes);
 
   // Per channel: the data mask and the signal to deconvolve (φ(B) or B); then every (channel, tile) pair is one job,
   // so that two cores stay busy whatever the number of channels.
@@ -350,12 +351,14 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   long long saturated = 0;
   for (int c = 0; c < channels; ++c) {
     const ResponseCurve& curve = curves.size() == 1 ? curves[0] : curves[c];
+    planes[c] = toUnitDouble(planes[c]);  // one plane at a time: a 12 MP image stays well under 2 GB
     if (options.mask_saturated && options.method == DeconvolutionMethod::TotalVariation) {
       masks[c] = planes[c] < options.saturation;
       saturated += static_cast<long long>(masks[c].total()) - cv::countNonZero(masks[c]);
     }
     (irradiance ? curve.inverse(planes[c]) : planes[c]).convertTo(observed[c], depth);
-    results[c].create(blurred.size(), CV_64F);
+    planes[c].release();
+    results[c].create(blurred.size(), depth);
   }
   const std::vector<Tile> tiles = planTiles(blurred.size(), k, options);
   const int jobs = channels * static_cast<int>(tiles.size());
@@ -368,7 +371,9 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   });
   for (int c = 0; c < channels; ++c) {
     const ResponseCurve& curve = curves.size() == 1 ? curves[0] : curves[c];
-    const cv::Mat clamped = cv::min(cv::max(results[c], 0.0), 1.0);
+    observed[c].release();
+    cv::Mat clamped;
+    cv::Mat(cv::min(cv::max(results[c], 0.0), 1.0)).convertTo(clamped, CV_64F);
     results[c] = irradiance ? curve.forward(clamped) : clamped;
   }
 

@@ -70,7 +70,7 @@ struct DeconvolutionOptions {
   // Large images are deconvolved in tiles of about this FFT size (0: the whole image at once); each tile fits its
   // core plus `tile_overlap` px on every side (0: twice the kernel's extent) and keeps the core. Images that fit in
   // 1.25 tiles are done whole.
-  int tile_size = 384;
+  int tile_size = 640;
   int tile_overlap = 0;
   void check() const;          // throws InvalidInput naming the bad option
 };
