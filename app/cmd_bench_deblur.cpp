@@ -16,7 +16,9 @@
 
 #include "bench_command.hpp"
 #include "crfcal/blur_model.hpp"
+#include "crfcal/curve_perturbation.hpp"
 #include "crfcal/deconvolution.hpp"
+#include "crfcal/image_quality.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/output_guard.hpp"
@@ -45,14 +47,28 @@ struct DeblurBenchArgs {
   double beta_factor = DeconvolutionOptions{}.beta_factor;
   int inner_iterations = DeconvolutionOptions{}.inner_iterations;
   bool double_precision = false;
-  bool bregman = false;
+  bool bregman = DeconvolutionOptions{}.bregman;
   double beta_start = DeconvolutionOptions{}.beta_start;
   double beta_max = DeconvolutionOptions{}.beta_max;
+  double phi_error = 0.02;  // RMSE of the perturbed φ (φ^a, a > 1 and a < 1 on alternate cases)
 };
+
+// One deblurred result's scores against the sharp image.
+struct Scores {
+  double psnr = 0, ssim = 0, edge_rmse = 0;
+  Scores& operator+=(const Scores& other) {
+    psnr += other.psnr, ssim += other.ssim, edge_rmse += other.edge_rmse;
+    return *this;
+  }
+};
+
+Scores score(const cv::Mat& estimate, const cv::Mat& sharp) {
+  return {crfcal::psnr(estimate, sharp), ssim(estimate, sharp), edgeBandError(estimate, sharp).rmse};
+}
 
 struct Means {
   int cases = 0;
-  double blurred = 0, intensity = 0, irradiance = 0;
+  Scores blurred, intensity, irradiance, irradiance_off;  // irradiance_off: φ off by --phi-error
   int irradiance_ahead = 0;
 };
 
@@ -143,6 +159,48 @@ int runSpeedBench(const DeblurBenchArgs& args, const DeconvolutionOptions& base)
   return kExitOk;
 }
 
+void printTables(const std::vector<std::pair<std::string, Means>>& rows) {
+  std::printf("PSNR\n%-22s %5s %11s %13s %14s %9s %8s %16s\n", "curve", "cases", "blurred dB", "intensity dB",
+              "irradiance dB", "gain dB", "ahead", "irr. phi off dB");
+  for (const auto& [label, m] : rows)
+    std::printf("%-22s %5d %11.2f %13.2f %14.2f %+9.2f %4d/%-3d %16.2f\n", label.c_str(), m.cases,
+                m.blurred.psnr / m.cases, m.intensity.psnr / m.cases, m.irradiance.psnr / m.cases,
+                (m.irradiance.psnr - m.intensity.psnr) / m.cases, m.irradiance_ahead, m.cases,
+                m.irradiance_off.psnr / m.cases);
+  std::printf("SSIM (Wang 2004) and edge-band RMSE (within 4 px of sharp edges of 3x3 contrast >= 0.3)\n");
+  std::printf("%-22s %9s %9s %9s %9s | %9s %9s %9s %9s\n", "curve", "SSIM blur", "intensity", "irrad.",
+              "phi off", "edge blur", "intensity", "irrad.", "phi off");
+  for (const auto& [label, m] : rows)
+    std::printf("%-22s %9.4f %9.4f %9.4f %9.4f | %9.4f %9.4f %9.4f %9.4f\n", label.c_str(), m.blurred.ssim / m.cases,
+                m.intensity.ssim / m.cases, m.irradiance.ssim / m.cases, m.irradiance_off.ssim / m.cases,
+                m.blurred.edge_rmse / m.cases, m.intensity.edge_rmse / m.cases, m.irradiance.edge_rmse / m.cases,
+                m.irradiance_off.edge_rmse / m.cases);
+}
+
+// The seed's claim that the intensity-domain artefact grows with Imax − Imin (Eq. 18 with Theorem 1): a vertical
+// step from 0.1 to 0.1 + contrast, blurred under gamma 2.2 by levin:2 (8-bit), deblurred in both domains; the
+// error RMS within 8 px of the step.
+void printContrastTable(DeconvolutionOptions options) {
+  const ResponseCurve curve(io::parseResponseSpec("gamma:2.2"));
+  const cv::Mat kernel = io::kernelFromSpec("levin:2");
+  std::printf("step edge 0.1 -> 0.1 + contrast, gamma 2.2, levin:2: error RMS within 8 px of the step\n");
+  std::printf("%9s %11s %11s %11s\n", "contrast", "blurred", "intensity", "irradiance");
+  for (double contrast : {0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9}) {
+    cv::Mat step(96, 96, CV_64F, cv::Scalar(0.1));
+    step.colRange(48, 96).setTo(0.1 + contrast);
+    const cv::Mat blurred = quantize(irradianceBlur(step, curve, kernel), 8);
+    EdgeBandOptions band;
+    band.contrast = 0.5 * contrast;
+    band.band = 8;
+    options.domain = DeconvolutionDomain::Intensity;
+    const double intensity = edgeBandError(deconvolve(blurred, kernel, {curve}, options).deblurred, step, band).rmse;
+    options.domain = DeconvolutionDomain::Irradiance;
+    const double irradiance = edgeBandError(deconvolve(blurred, kernel, {curve}, options).deblurred, step, band).rmse;
+    std::printf("%9.1f %11.4f %11.4f %11.4f\n", contrast, edgeBandError(blurred, step, band).rmse, intensity,
+                irradiance);
+  }
+}
+
 int runDeblurBench(const DeblurBenchArgs& args) {
   const fs::path samples = io::samplesDirectory();
   std::vector<std::string> curves = args.curves;
@@ -160,46 +218,53 @@ int runDeblurBench(const DeblurBenchArgs& args) {
   for (int k = 1; k <= args.kernels; ++k) kernels.push_back(io::kernelFromSpec("levin:" + std::to_string(k)));
 
   const auto start = std::chrono::steady_clock::now();
-  nlohmann::json json = {{"method", args.method}, {"lambda", args.lambda}, {"size", args.size}, {"cases", nlohmann::json::array()}};
-  std::printf("%s deblurring, %zu images (%dx%d) x %zu Levin kernels, true kernel and true phi, 8-bit, no noise\n",
-              args.method.c_str(), images.size(), images[0].cols, images[0].rows, kernels.size());
-  std::printf("%-22s %5s %11s %13s %14s %9s %8s\n", "curve", "cases", "blurred dB", "intensity dB", "irradiance dB",
-              "gain dB", "ahead");
+  nlohmann::json json = {{"method", args.method}, {"lambda", args.lambda}, {"size", args.size},
+                         {"phi_error", args.phi_error}, {"cases", nlohmann::json::array()}};
+  std::printf("%s deblurring, %zu images (%dx%d) x %zu Levin kernels, true kernel, 8-bit, no noise; irradiance with "
+              "the true phi and with phi off by RMSE %.3f (phi^a, a > 1 and a < 1 on alternate cases)\n",
+              args.method.c_str(), images.size(), images[0].cols, images[0].rows, kernels.size(), args.phi_error);
+  std::vector<std::pair<std::string, Means>> rows;
   Means all;
   for (const std::string& spec : curves) {
     const ResponseCurve curve(io::parseResponseSpec(spec));
+    const ResponseCurve steeper = powerPerturbedCurve(curve, args.phi_error, true);
+    const ResponseCurve flatter = powerPerturbedCurve(curve, args.phi_error, false);
     Means means;
     for (size_t i = 0; i < images.size(); ++i)
       for (size_t k = 0; k < kernels.size(); ++k) {
         const cv::Mat blurred = quantize(irradianceBlur(images[i], curve, kernels[k]), 8);
+        const ResponseCurve& off = (i + k) % 2 == 0 ? steeper : flatter;
         options.domain = DeconvolutionDomain::Intensity;
-        const double intensity = psnr(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
+        const Scores intensity = score(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
         options.domain = DeconvolutionDomain::Irradiance;
-        const double irradiance = psnr(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
-        const double before = psnr(blurred, images[i]);
+        const Scores irradiance = score(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
+        const Scores irradiance_off = score(deconvolve(blurred, kernels[k], {off}, options).deblurred, images[i]);
+        const Scores before = score(blurred, images[i]);
         for (Means* m : {&means, &all}) {
           ++m->cases;
           m->blurred += before;
           m->intensity += intensity;
           m->irradiance += irradiance;
-          m->irradiance_ahead += irradiance > intensity;
+          m->irradiance_off += irradiance_off;
+          m->irradiance_ahead += irradiance.psnr > intensity.psnr;
         }
+        const auto entry = [](const Scores& s) {
+          return nlohmann::json{{"psnr", s.psnr}, {"ssim", s.ssim}, {"edge_rmse", s.edge_rmse}};
+        };
         json["cases"].push_back({{"curve", curveLabel(spec)}, {"image", i + 1}, {"kernel", k + 1},
-                                 {"blurred_psnr", before}, {"intensity_psnr", intensity},
-                                 {"irradiance_psnr", irradiance}});
+                                 {"blurred", entry(before)}, {"intensity", entry(intensity)},
+                                 {"irradiance", entry(irradiance)}, {"irradiance_phi_off", entry(irradiance_off)},
+                                 {"blurred_psnr", before.psnr}, {"intensity_psnr", intensity.psnr},
+                                 {"irradiance_psnr", irradiance.psnr}});
         if (args.per_case)
-          std::printf("  %s im%zu levin:%zu  %.2f  %.2f  %.2f\n", curveLabel(spec).c_str(), i + 1, k + 1, before,
-                      intensity, irradiance);
+          std::printf("  %s im%zu levin:%zu  %.2f  %.2f  %.2f  %.2f\n", curveLabel(spec).c_str(), i + 1, k + 1,
+                      before.psnr, intensity.psnr, irradiance.psnr, irradiance_off.psnr);
       }
-    const auto row = [](const std::string& label, const Means& m) {
-      std::printf("%-22s %5d %11.2f %13.2f %14.2f %+9.2f %4d/%-3d\n", label.c_str(), m.cases, m.blurred / m.cases,
-                  m.intensity / m.cases, m.irradiance / m.cases, (m.irradiance - m.intensity) / m.cases,
-                  m.irradiance_ahead, m.cases);
-    };
-    row(curveLabel(spec), means);
-    std::fflush(stdout);
-    if (&spec == &curves.back() && curves.size() > 1) row("all", all);
+    rows.emplace_back(curveLabel(spec), means);
   }
+  if (curves.size() > 1) rows.emplace_back("all", all);
+  printTables(rows);
+  printContrastTable(options);
   std::printf("%.1f s\n", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   if (!args.json.empty()) io::writeJsonOutput(args.json, json, "bench deblur");
   return kExitOk;
@@ -227,9 +292,11 @@ const BenchRegistration registration(
       command.add_option("--tile-size", args->tile_size, "FFT tile size (0: whole images)")->check(CLI::Range(0, 16384));
       command.add_option("--beta-factor", args->beta_factor, "TV continuation factor of beta")->check(CLI::Range(1.01, 64.0));
       command.add_option("--inner", args->inner_iterations, "TV u/w alternations per beta")->check(CLI::Range(1, 100));
-      command.add_flag("--bregman", args->bregman, "ADMM multipliers in the TV solver");
+      command.add_flag("--bregman,!--no-bregman", args->bregman, "ADMM multipliers in the TV solver (default on)");
       command.add_option("--beta-start", args->beta_start, "First beta")->check(CLI::PositiveNumber);
       command.add_option("--beta-max", args->beta_max, "Last beta")->check(CLI::PositiveNumber);
+      command.add_option("--phi-error", args->phi_error, "RMSE of the perturbed phi of the 'phi off' columns")
+          ->check(CLI::Range(0.001, 0.2));
       command.add_flag("--double", args->double_precision, "CV_64F DFTs (the reference) instead of CV_32F");
       command.add_option("--json", args->json, "Write every case to this JSON file (atomic)");
       command.add_flag("--force", args->force, kForceHelp);
