@@ -86,15 +86,17 @@ struct DeconvolutionResult {
   std::string summary() const;
 };
 
-// Deconvolves one channel `observed` (CV_64F, in the domain to deconvolve) with `kernel`; `data_mask` (CV_8U,
-// same size, 0 = excluded; empty = all pixels) enters the TV data term. Returns a CV_64F image of the same size.
-// `iterations` (optional) receives the number of u-steps.
+// Deconvolves one channel `observed` (CV_32F or CV_64F, in the domain to deconvolve) with `kernel`; `data_mask`
+// (CV_8U, same size, 0 = excluded; empty = all pixels) enters the TV data term. Large images go tile by tile (the
+// tiles in parallel). Returns a CV_64F image of the same size, not clamped. `iterations` (optional) receives the
+// number of u-steps of the first tile.
 cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const cv::Mat& data_mask,
                           const DeconvolutionOptions& options, int* iterations = nullptr);
 
 // Deblurs `blurred` (1 or 3 channels, CV_8U/16U/32F/64F; integer types scaled to [0,1]) with `kernel` (normalised
 // here; throws InvalidInput for a kernel normalizeKernel rejects) in options.domain, each channel with its own φ
-// (`curves`: one for all channels or one per channel, in the image's channel order), channels in parallel.
+// (`curves`: one for all channels or one per channel, in the image's channel order); every (channel, tile) pair is
+// one parallel job.
 DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, const std::vector<ResponseCurve>& curves,
                                const DeconvolutionOptions& options = {});
 
