@@ -2,18 +2,25 @@
 // to --size px for speed) × the Levin kernels × response curves (gamma 2.2 and real camera curves) are blurred in
 // irradiance (B = ψ(φ(I) ⊗ K), 8-bit, no noise) and deblurred with the true kernel and the true φ, once in the
 // intensity domain (B directly) and once in irradiance (φ(B), deconvolve, ψ). Prints the mean PSNR per curve.
+#include <sys/resource.h>
+
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
 #include "crfcal/blur_model.hpp"
+#include "crfcal/curve_perturbation.hpp"
 #include "crfcal/deconvolution.hpp"
+#include "crfcal/image_quality.hpp"
+#include "crfcal/pair_calibration.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/output_guard.hpp"
@@ -36,12 +43,39 @@ struct DeblurBenchArgs {
   std::string json;
   bool force = false;  // --json over a file crfcal did not write (never deletes it)
   bool per_case = false;
+  bool speed = false;               // only the speed measurement (a large RGB image)
+  int speed_width = 4000, speed_height = 3000;
+  int tile_size = DeconvolutionOptions{}.tile_size;
+  double beta_factor = DeconvolutionOptions{}.beta_factor;
+  int inner_iterations = DeconvolutionOptions{}.inner_iterations;
+  bool double_precision = false;
+  bool bregman = DeconvolutionOptions{}.bregman;
+  double beta_start = DeconvolutionOptions{}.beta_start;
+  double beta_max = DeconvolutionOptions{}.beta_max;
+  double phi_error = 0.02;  // RMSE of the perturbed φ (φ^a, a > 1 and a < 1 on alternate cases)
+  bool estimated_phi = false;  // also deblur with the φ crfcal estimates from each simulated pair
 };
+
+// One deblurred result's scores against the sharp image.
+struct Scores {
+  double psnr = 0, ssim = 0, edge_rmse = 0;
+  Scores& operator+=(const Scores& other) {
+    psnr += other.psnr, ssim += other.ssim, edge_rmse += other.edge_rmse;
+    return *this;
+  }
+};
+
+Scores score(const cv::Mat& estimate, const cv::Mat& sharp) {
+  return {crfcal::psnr(estimate, sharp), ssim(estimate, sharp), edgeBandError(estimate, sharp).rmse};
+}
 
 struct Means {
   int cases = 0;
-  double blurred = 0, intensity = 0, irradiance = 0;
+  Scores blurred, intensity, irradiance, irradiance_off;  // irradiance_off: φ off by --phi-error
   int irradiance_ahead = 0;
+  Scores estimated;             // --estimated-phi: irradiance domain with crfcal's φ of the pair
+  int estimated_cases = 0;      // pairs whose calibration succeeded
+  double estimated_phi_rmse = 0;
 };
 
 std::string curveLabel(const std::string& spec) {
@@ -54,65 +88,227 @@ cv::Mat centreCrop(const cv::Mat& image, int size) {
   return image(cv::Rect((image.cols - size) / 2, (image.rows - size) / 2, size, size)).clone();
 }
 
+DeconvolutionOptions optionsOf(const DeblurBenchArgs& args) {
+  DeconvolutionOptions options;
+  options.method = parseDeconvolutionMethod(args.method);
+  options.lambda = args.lambda;
+  options.tile_size = args.tile_size;
+  options.beta_factor = args.beta_factor;
+  options.inner_iterations = args.inner_iterations;
+  options.single_precision = !args.double_precision;
+  options.bregman = args.bregman;
+  options.beta_start = args.beta_start;
+  options.beta_max = args.beta_max;
+  options.check();
+  return options;
+}
+
+// A colour scene of `size`: im1, im2, im3 of the Levin set as B, G, R, each mirror-tiled at its own scale (the
+// detail density of a photo, not of a 16x upscale).
+cv::Mat tiledScene(const fs::path& samples, cv::Size size) {
+  std::vector<cv::Mat> planes;
+  for (int i = 1; i <= 3; ++i) {
+    const cv::Mat image = io::readGrayUnit(samples / "levin09" / ("im" + std::to_string(i) + ".png"));
+    cv::Mat tiled = image;
+    while (tiled.cols < size.width || tiled.rows < size.height) {  // each pass doubles it (mirrored copies)
+      cv::Mat grown;
+      cv::copyMakeBorder(tiled, grown, 0, tiled.rows, 0, tiled.cols, cv::BORDER_REFLECT);
+      tiled = grown;
+    }
+    planes.push_back(tiled(cv::Rect({0, 0}, size)).clone());
+  }
+  cv::Mat scene;
+  cv::merge(planes, scene);
+  return scene;
+}
+
+// A 25×25 motion kernel: a 2 px wide diagonal stroke (the "25 px kernel").
+cv::Mat strokeKernel25() {
+  cv::Mat kernel = cv::Mat::zeros(25, 25, CV_64F);
+  cv::line(kernel, {2, 20}, {22, 4}, cv::Scalar(1), 2);
+  return kernel / cv::sum(kernel)[0];
+}
+
+// The speed target: deblur a 12 MP RGB image (gamma 2.2, irradiance domain) and report wall time and the
+// process's peak resident memory (getrusage; it includes the scene's synthesis).
+int runSpeedBench(const DeblurBenchArgs& args, const DeconvolutionOptions& base) {
+  const cv::Size size(args.speed_width, args.speed_height);
+  const ResponseCurve curve(io::parseResponseSpec("gamma:2.2"));
+  const cv::Mat kernel = strokeKernel25();
+  const cv::Mat sharp = tiledScene(io::samplesDirectory(), size);
+  std::vector<cv::Mat> planes;
+  cv::split(sharp, planes);
+  for (cv::Mat& plane : planes) plane = quantize(irradianceBlur(plane, curve, kernel), 8);
+  cv::Mat blurred, blurred8;
+  cv::merge(planes, blurred);
+  blurred.convertTo(blurred8, CV_8UC3, 255.0);  // what a camera hands over
+  DeconvolutionOptions options = base;
+  options.domain = DeconvolutionDomain::Irradiance;
+  std::printf("speed: %dx%d RGB (%.1f MP), 25x25 kernel, %s in the irradiance domain, %d threads\n", size.width,
+              size.height, size.area() / 1e6, toString(options.method), cv::getNumThreads());
+  const auto cpuSeconds = [] {
+    rusage usage{};
+    getrusage(RUSAGE_SELF, &usage);
+    return usage.ru_utime.tv_sec + usage.ru_stime.tv_sec + 1e-6 * (usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+  };
+  const double cpu_start = cpuSeconds();
+  const auto start = std::chrono::steady_clock::now();
+  const DeconvolutionResult result = deconvolve(blurred8, kernel, {curve}, options);
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double cpu = cpuSeconds() - cpu_start;
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  std::printf("%s\n", result.summary().c_str());
+  std::printf("wall %.1f s, CPU %.1f s, peak RSS %.0f MB; PSNR blurred %.2f dB, deblurred %.2f dB (%d px from the "
+              "border)\n", wall, cpu, usage.ru_maxrss / 1024.0, psnr(blurred, sharp, 40),
+              psnr(result.deblurred, sharp, 40), 40);
+  return kExitOk;
+}
+
+// φ (G) crfcal estimates from the simulated pair: the full 255 px sharp image and its blur, 8-bit, r = 1.
+// Empty when the calibration refuses the pair.
+std::optional<ResponseCurve> estimatedCurve(const cv::Mat& sharp, const cv::Mat& blurred) {
+  cv::Mat sharp8, blurred8;
+  sharp.convertTo(sharp8, CV_8U, 255.0);
+  blurred.convertTo(blurred8, CV_8U, 255.0);
+  PairCalibrationOptions options;
+  options.fit.nominal_ratio = 1.0;
+  try {
+    const PairCalibrationResult result = calibratePair(sharp8, blurred8, options);
+    return ResponseCurve::fromSamples(result.fits.at("G").inverse_crf);
+  } catch (const InvalidInput&) {
+    return std::nullopt;
+  }
+}
+
+void printTables(const std::vector<std::pair<std::string, Means>>& rows) {
+  std::printf("PSNR\n%-22s %5s %11s %13s %14s %9s %8s %16s\n", "curve", "cases", "blurred dB", "intensity dB",
+              "irradiance dB", "gain dB", "ahead", "irr. phi off dB");
+  for (const auto& [label, m] : rows)
+    std::printf("%-22s %5d %11.2f %13.2f %14.2f %+9.2f %4d/%-3d %16.2f\n", label.c_str(), m.cases,
+                m.blurred.psnr / m.cases, m.intensity.psnr / m.cases, m.irradiance.psnr / m.cases,
+                (m.irradiance.psnr - m.intensity.psnr) / m.cases, m.irradiance_ahead, m.cases,
+                m.irradiance_off.psnr / m.cases);
+  std::printf("SSIM (Wang 2004) and edge-band RMSE (within 4 px of sharp edges of 3x3 contrast >= 0.3)\n");
+  std::printf("%-22s %9s %9s %9s %9s | %9s %9s %9s %9s\n", "curve", "SSIM blur", "intensity", "irrad.",
+              "phi off", "edge blur", "intensity", "irrad.", "phi off");
+  for (const auto& [label, m] : rows)
+    std::printf("%-22s %9.4f %9.4f %9.4f %9.4f | %9.4f %9.4f %9.4f %9.4f\n", label.c_str(), m.blurred.ssim / m.cases,
+                m.intensity.ssim / m.cases, m.irradiance.ssim / m.cases, m.irradiance_off.ssim / m.cases,
+                m.blurred.edge_rmse / m.cases, m.intensity.edge_rmse / m.cases, m.irradiance.edge_rmse / m.cases,
+                m.irradiance_off.edge_rmse / m.cases);
+  if (rows.front().second.estimated_cases == 0 && rows.back().second.estimated_cases == 0) return;
+  std::printf("irradiance domain with the phi crfcal estimates from each pair (full 255 px images)\n");
+  std::printf("%-22s %9s %10s %9s %9s %9s\n", "curve", "pairs ok", "phi RMSE", "PSNR dB", "SSIM", "edge RMSE");
+  for (const auto& [label, m] : rows) {
+    const int n = std::max(m.estimated_cases, 1);
+    std::printf("%-22s %4d/%-4d %10.4f %9.2f %9.4f %9.4f\n", label.c_str(), m.estimated_cases, m.cases,
+                m.estimated_phi_rmse / n, m.estimated.psnr / n, m.estimated.ssim / n, m.estimated.edge_rmse / n);
+  }
+}
+
+// The seed's claim that the intensity-domain artefact grows with Imax − Imin (Eq. 18 with Theorem 1): a vertical
+// step from 0.1 to 0.1 + contrast, blurred under gamma 2.2 by levin:2 (8-bit), deblurred in both domains; the
+// error RMS within 8 px of the step.
+void printContrastTable(DeconvolutionOptions options) {
+  const ResponseCurve curve(io::parseResponseSpec("gamma:2.2"));
+  const cv::Mat kernel = io::kernelFromSpec("levin:2");
+  std::printf("step edge 0.1 -> 0.1 + contrast, gamma 2.2, levin:2: error RMS within 8 px of the step\n");
+  std::printf("%9s %11s %11s %11s\n", "contrast", "blurred", "intensity", "irradiance");
+  for (double contrast : {0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9}) {
+    cv::Mat step(96, 96, CV_64F, cv::Scalar(0.1));
+    step.colRange(48, 96).setTo(0.1 + contrast);
+    const cv::Mat blurred = quantize(irradianceBlur(step, curve, kernel), 8);
+    EdgeBandOptions band;
+    band.contrast = 0.5 * contrast;
+    band.band = 8;
+    options.domain = DeconvolutionDomain::Intensity;
+    const double intensity = edgeBandError(deconvolve(blurred, kernel, {curve}, options).deblurred, step, band).rmse;
+    options.domain = DeconvolutionDomain::Irradiance;
+    const double irradiance = edgeBandError(deconvolve(blurred, kernel, {curve}, options).deblurred, step, band).rmse;
+    std::printf("%9.1f %11.4f %11.4f %11.4f\n", contrast, edgeBandError(blurred, step, band).rmse, intensity,
+                irradiance);
+  }
+}
+
 int runDeblurBench(const DeblurBenchArgs& args) {
   const fs::path samples = io::samplesDirectory();
   std::vector<std::string> curves = args.curves;
   if (curves.empty())
     curves = {"gamma:2.2", "table:" + (samples / "camera_curves" / "NikonD70.csv").string(),
               "table:" + (samples / "camera_curves" / "CanonEOS1DsMarkII.csv").string()};
-  DeconvolutionOptions options;
-  options.method = parseDeconvolutionMethod(args.method);
-  options.lambda = args.lambda;
-  options.check();
+  DeconvolutionOptions options = optionsOf(args);
+  if (args.speed) return runSpeedBench(args, options);
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, {"bench deblur", {}, args.force});  // before the work
 
-  std::vector<cv::Mat> images;
-  for (int i = 1; i <= args.images; ++i)
-    images.push_back(centreCrop(io::readGrayUnit(samples / "levin09" / ("im" + std::to_string(i) + ".png")), args.size));
+  std::vector<cv::Mat> images, full_images;
+  for (int i = 1; i <= args.images; ++i) {
+    full_images.push_back(io::readGrayUnit(samples / "levin09" / ("im" + std::to_string(i) + ".png")));
+    images.push_back(centreCrop(full_images.back(), args.size));
+  }
   std::vector<cv::Mat> kernels;
   for (int k = 1; k <= args.kernels; ++k) kernels.push_back(io::kernelFromSpec("levin:" + std::to_string(k)));
 
   const auto start = std::chrono::steady_clock::now();
-  nlohmann::json json = {{"method", args.method}, {"lambda", args.lambda}, {"size", args.size}, {"cases", nlohmann::json::array()}};
-  std::printf("%s deblurring, %zu images (%dx%d) x %zu Levin kernels, true kernel and true phi, 8-bit, no noise\n",
-              args.method.c_str(), images.size(), images[0].cols, images[0].rows, kernels.size());
-  std::printf("%-22s %5s %11s %13s %14s %9s %8s\n", "curve", "cases", "blurred dB", "intensity dB", "irradiance dB",
-              "gain dB", "ahead");
+  nlohmann::json json = {{"method", args.method}, {"lambda", args.lambda}, {"size", args.size},
+                         {"phi_error", args.phi_error}, {"cases", nlohmann::json::array()}};
+  std::printf("%s deblurring, %zu images (%dx%d) x %zu Levin kernels, true kernel, 8-bit, no noise; irradiance with "
+              "the true phi and with phi off by RMSE %.3f (phi^a, a > 1 and a < 1 on alternate cases)\n",
+              args.method.c_str(), images.size(), images[0].cols, images[0].rows, kernels.size(), args.phi_error);
+  std::vector<std::pair<std::string, Means>> rows;
   Means all;
   for (const std::string& spec : curves) {
     const ResponseCurve curve(io::parseResponseSpec(spec));
+    const ResponseCurve steeper = powerPerturbedCurve(curve, args.phi_error, true);
+    const ResponseCurve flatter = powerPerturbedCurve(curve, args.phi_error, false);
     Means means;
     for (size_t i = 0; i < images.size(); ++i)
       for (size_t k = 0; k < kernels.size(); ++k) {
         const cv::Mat blurred = quantize(irradianceBlur(images[i], curve, kernels[k]), 8);
+        const ResponseCurve& off = (i + k) % 2 == 0 ? steeper : flatter;
         options.domain = DeconvolutionDomain::Intensity;
-        const double intensity = psnr(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
+        const Scores intensity = score(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
         options.domain = DeconvolutionDomain::Irradiance;
-        const double irradiance = psnr(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
-        const double before = psnr(blurred, images[i]);
+        const Scores irradiance = score(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
+        const Scores irradiance_off = score(deconvolve(blurred, kernels[k], {off}, options).deblurred, images[i]);
+        const Scores before = score(blurred, images[i]);
+        std::optional<ResponseCurve> estimated;
+        if (args.estimated_phi)
+          estimated = estimatedCurve(full_images[i], quantize(irradianceBlur(full_images[i], curve, kernels[k]), 8));
+        if (estimated) {
+          const Scores with_estimate = score(deconvolve(blurred, kernels[k], {*estimated}, options).deblurred, images[i]);
+          const double phi_rmse = curveRmse(*estimated, curve);
+          for (Means* m : {&means, &all}) {
+            m->estimated += with_estimate;
+            ++m->estimated_cases;
+            m->estimated_phi_rmse += phi_rmse;
+          }
+        }
         for (Means* m : {&means, &all}) {
           ++m->cases;
           m->blurred += before;
           m->intensity += intensity;
           m->irradiance += irradiance;
-          m->irradiance_ahead += irradiance > intensity;
+          m->irradiance_off += irradiance_off;
+          m->irradiance_ahead += irradiance.psnr > intensity.psnr;
         }
+        const auto entry = [](const Scores& s) {
+          return nlohmann::json{{"psnr", s.psnr}, {"ssim", s.ssim}, {"edge_rmse", s.edge_rmse}};
+        };
         json["cases"].push_back({{"curve", curveLabel(spec)}, {"image", i + 1}, {"kernel", k + 1},
-                                 {"blurred_psnr", before}, {"intensity_psnr", intensity},
-                                 {"irradiance_psnr", irradiance}});
+                                 {"blurred", entry(before)}, {"intensity", entry(intensity)},
+                                 {"irradiance", entry(irradiance)}, {"irradiance_phi_off", entry(irradiance_off)},
+                                 {"blurred_psnr", before.psnr}, {"intensity_psnr", intensity.psnr},
+                                 {"irradiance_psnr", irradiance.psnr}});
         if (args.per_case)
-          std::printf("  %s im%zu levin:%zu  %.2f  %.2f  %.2f\n", curveLabel(spec).c_str(), i + 1, k + 1, before,
-                      intensity, irradiance);
+          std::printf("  %s im%zu levin:%zu  %.2f  %.2f  %.2f  %.2f\n", curveLabel(spec).c_str(), i + 1, k + 1,
+                      before.psnr, intensity.psnr, irradiance.psnr, irradiance_off.psnr);
       }
-    const auto row = [](const std::string& label, const Means& m) {
-      std::printf("%-22s %5d %11.2f %13.2f %14.2f %+9.2f %4d/%-3d\n", label.c_str(), m.cases, m.blurred / m.cases,
-                  m.intensity / m.cases, m.irradiance / m.cases, (m.irradiance - m.intensity) / m.cases,
-                  m.irradiance_ahead, m.cases);
-    };
-    row(curveLabel(spec), means);
-    std::fflush(stdout);
-    if (&spec == &curves.back() && curves.size() > 1) row("all", all);
+    rows.emplace_back(curveLabel(spec), means);
   }
+  if (curves.size() > 1) rows.emplace_back("all", all);
+  printTables(rows);
+  printContrastTable(options);
   std::printf("%.1f s\n", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   if (!args.json.empty()) io::writeJsonOutput(args.json, json, "bench deblur");
   return kExitOk;
@@ -133,6 +329,22 @@ const BenchRegistration registration(
       command.add_option("--method", args->method, "tv or wiener")->check(CLI::IsMember({"tv", "wiener"}));
       command.add_option("--lambda", args->lambda, "TV data weight")->check(CLI::PositiveNumber);
       command.add_flag("--per-case", args->per_case, "Print one row per image and kernel");
+      command.add_flag("--speed", args->speed,
+                       "Only time a large RGB image (--speed-width x --speed-height, default 12 MP): wall s, peak RSS");
+      command.add_option("--speed-width", args->speed_width, "Width of the --speed image")->check(CLI::Range(64, 12000));
+      command.add_option("--speed-height", args->speed_height, "Height of the --speed image")->check(CLI::Range(64, 12000));
+      command.add_option("--tile-size", args->tile_size, "FFT tile size (0: whole images)")->check(CLI::Range(0, 16384));
+      command.add_option("--beta-factor", args->beta_factor, "TV continuation factor of beta")->check(CLI::Range(1.01, 64.0));
+      command.add_option("--inner", args->inner_iterations, "TV u/w alternations per beta")->check(CLI::Range(1, 100));
+      command.add_flag("--bregman,!--no-bregman", args->bregman, "ADMM multipliers in the TV solver (default on)");
+      command.add_option("--beta-start", args->beta_start, "First beta")->check(CLI::PositiveNumber);
+      command.add_option("--beta-max", args->beta_max, "Last beta")->check(CLI::PositiveNumber);
+      command.add_option("--phi-error", args->phi_error, "RMSE of the perturbed phi of the 'phi off' columns")
+          ->check(CLI::Range(0.001, 0.2));
+      command.add_flag("--estimated-phi", args->estimated_phi,
+                       "Also deblur with the phi crfcal estimates from each simulated pair (one pair calibration per "
+                       "case: slow)");
+      command.add_flag("--double", args->double_precision, "CV_64F DFTs (the reference) instead of CV_32F");
       command.add_option("--json", args->json, "Write every case to this JSON file (atomic)");
       command.add_flag("--force", args->force, kForceHelp);
       return [args] { return runDeblurBench(*args); };

@@ -13,6 +13,7 @@
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/plot.hpp"
 #include "crfcal/theory.hpp"
+#include "crfcal/theory_deblur.hpp"
 #include "progress.hpp"
 
 namespace crfcal::app {
@@ -301,6 +302,64 @@ std::string checkTheorem(const io::OutputDirectory& out, const fs::path& images_
   return text;
 }
 
+// ---- Fig. 3 / Fig. 4 (Sec. 3.2) -----------------------------------------------------------------------------
+
+std::string writeFig3(const io::OutputDirectory& out) {
+  const theory::StepEdgeResult step = theory::stepEdgeDeconvolution();
+  std::string csv = "x,I,B,Bhat,P,B_deconvolved,P_deconvolved,irradiance_deconvolved\n";
+  std::vector<double> x(step.sharp.size());
+  for (size_t i = 0; i < x.size(); ++i) {
+    x[i] = double(i);
+    csv += format("%zu,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g\n", i, step.sharp[i], step.blurred[i],
+                  step.intensity_blurred[i], step.artefact[i], step.deconvolved[i], step.artefact_deconvolved[i],
+                  step.irradiance_deconvolved[i]);
+  }
+  io::writeTextFile(out.file("fig3_step_edge.csv"), csv);
+  std::vector<io::PlotSeries> series(6);
+  series[0] = {x, step.sharp, cv::Scalar(0, 0, 0), "sharp I", 2, false, false};
+  series[1] = {x, step.blurred, io::seriesColor(0), "B = psi(phi(I) (x) K)", 1, false, false};
+  series[2] = {x, step.artefact, io::seriesColor(1), "P = B - I (x) K", 2, false, false};
+  series[3] = {x, step.deconvolved, io::seriesColor(2), "B (x) K^-1 = I + P (x) K^-1", 2, false, false};
+  series[4] = {x, step.artefact_deconvolved, io::seriesColor(3), "P (x) K^-1", 2, false, true};
+  series[5] = {x, step.irradiance_deconvolved, io::seriesColor(4), "psi(phi(B) (x) K^-1)", 1, false, true};
+  io::PlotOptions plot;
+  plot.title = "Fig. 3: step edge, box 21 px, gamma 2.2, K^-1 as Wiener (nsr 1e-2)";
+  plot.x_label = "x (px)";
+  plot.y_label = "intensity";
+  plot.size = {960, 540};
+  plot.y_min = -0.3;
+  plot.y_max = 1.2;
+  io::writePlot(out.file("fig3_step_edge.png"), series, plot);
+  return "Fig. 3 (Eq. 18):\n" + step.summary();
+}
+
+std::string writeFig4(const io::OutputDirectory& out, const fs::path& images_dir) {
+  std::vector<fs::path> images, kernel_files;
+  listInputs(images_dir, images, kernel_files);
+  const cv::Mat kernel = kernel_files.empty() ? io::kernelFromSpec("levin:2") : io::readKernel(kernel_files.front());
+  const cv::Mat sharp = io::readGrayUnit(images.front());
+  const theory::TvComparison tv = theory::tvComparison(sharp, kernel);
+  const cv::Mat separator(sharp.rows, 4, CV_8UC3, cv::Scalar(0, 0, 255));
+  cv::Mat results, errors;
+  cv::hconcat(std::vector<cv::Mat>{toBgr8(tv.blurred), separator, toBgr8(tv.tv_blurred), separator,
+                                   toBgr8(tv.tv_intensity_blurred), separator, toBgr8(tv.tv_irradiance)},
+              results);
+  io::writeImage(out.file("fig4_tv_results.png"), results);
+  cv::hconcat(std::vector<cv::Mat>{tv.tv_blurred - tv.sharp, tv.tv_intensity_blurred - tv.sharp,
+                                   tv.tv_irradiance - tv.sharp},
+              errors);
+  io::writeSignedMap(out.file("fig4_tv_errors_signed.png"), errors, 0.2);
+  std::string csv = "input,domain,psnr_db,ssim\n";
+  csv += format("B,intensity,%.4f,%.5f\n", tv.psnr_tv_blurred, tv.ssim_tv_blurred);
+  csv += format("Bhat,intensity,%.4f,%.5f\n", tv.psnr_tv_intensity_blurred, tv.ssim_tv_intensity_blurred);
+  csv += format("B,irradiance,%.4f,%.5f\n", tv.psnr_tv_irradiance, tv.ssim_tv_irradiance);
+  io::writeTextFile(out.file("fig4_tv.csv"), csv);
+  return "Fig. 4 (" + images.front().filename().string() + ", " +
+         (kernel_files.empty() ? std::string("levin:2") : kernel_files.front().filename().string()) +
+         ", gamma 2.2; results: B | TV(B) | TV(B^) | psi(TV(phi(B))); errors: the last three - I, +-0.2):\n" +
+         tv.summary();
+}
+
 int runTheory(const TheoryArgs& args) {
   Progress progress(args.quiet);
   const fs::path images_dir = args.images_dir.empty() ? io::samplesDirectory() / "levin09" : fs::path(args.images_dir);
@@ -311,21 +370,25 @@ int runTheory(const TheoryArgs& args) {
   progress.stage("fig. 1(b)/(c) block pattern");
   const std::string fig1c = writeFig1bc(out);
   progress.done();
+  progress.stage("fig. 3 step edge, fig. 4 TV");
+  const std::string fig34 = writeFig3(out) + "\n" + writeFig4(out, images_dir);
+  progress.done();
   progress.stage("theorem 1 check");
   const std::string theorem = checkTheorem(out, images_dir, progress);
   progress.done();
-  const std::string summary = theorem + "\n" + fig1a + "\n" + fig1c;
+  const std::string summary = theorem + "\n" + fig1a + "\n" + fig1c + "\n" + fig34;
   io::writeTextFile(out.file("summary.txt"), summary);
   out.commit();
   std::printf("%s\nwrote %s/{fig1a_gamma_profiles.png, fig1a_signal.png, fig1a.csv, fig1b_kernel_size.png, "
               "fig1b_kernel_size.csv, fig1c_pattern.png, fig1c_gamma_signed.png, fig1c_edges.png, fig1c_edges.csv, "
+              "fig3_step_edge.png, fig3_step_edge.csv, fig4_tv_results.png, fig4_tv_errors_signed.png, fig4_tv.csv, "
               "theorem1.csv, summary.txt}\n",
               summary.c_str(), args.output.c_str());
   return kExitOk;
 }
 
 const CommandRegistration registration(
-    20, "theory", "Reproduce Fig. 1 and check Theorem 1 (0 <= Gamma <= Imax - Imin) on sharp images (seed Sec. 3)",
+    20, "theory", "Reproduce Fig. 1, 3, 4 and check Theorem 1 (0 <= Gamma <= Imax - Imin) on sharp images (seed Sec. 3)",
     [](CLI::App& command) {
       auto args = std::make_shared<TheoryArgs>();
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();

@@ -176,6 +176,42 @@ TEST(Deconvolution, ColourChannelsUseTheirOwnCurves) {
   }
 }
 
+// The default CV_32F DFTs against the CV_64F reference: the same solution to far below one 8-bit level.
+TEST(Deconvolution, SinglePrecisionMatchesDoublePrecision) {
+  const cv::Mat sharp = sharpImage()(cv::Rect(70, 70, 96, 96)).clone();
+  const cv::Mat kernel = test::levinKernel(5);
+  const ResponseCurve curve = gammaCurve(2.2);
+  const cv::Mat blurred = quantize(irradianceBlur(sharp, curve, kernel), 8);
+  DeconvolutionOptions options;
+  const cv::Mat single = deconvolve(blurred, kernel, {curve}, options).deblurred;
+  options.single_precision = false;
+  const cv::Mat reference = deconvolve(blurred, kernel, {curve}, options).deblurred;
+  const double largest = cv::norm(single, reference, cv::NORM_INF);
+  std::printf("CV_32F vs CV_64F: largest difference %.2e, RMSE %.2e\n", largest, rmse(single, reference));
+  EXPECT_LT(largest, 1e-4);
+  EXPECT_LT(rmse(single, reference), 1e-4);
+  EXPECT_GT(rmse(single, blurred), 100 * rmse(single, reference));  // the comparison is not vacuous
+}
+
+// Tiles (each with its own free boundary, overlapping, cores kept) give nearly the whole-image solution.
+TEST(Deconvolution, TilesMatchTheWholeImage) {
+  const cv::Mat sharp = sharpImage();
+  const cv::Mat kernel = test::levinKernel(5);  // 13 px: tiles of 160 keep 82 px cores
+  const ResponseCurve curve = gammaCurve(2.2);
+  const cv::Mat blurred = quantize(irradianceBlur(sharp, curve, kernel), 8);
+  DeconvolutionOptions options;
+  options.tile_size = 0;
+  const DeconvolutionResult whole = deconvolve(blurred, kernel, {curve}, options);
+  options.tile_size = 160;
+  const DeconvolutionResult tiled = deconvolve(blurred, kernel, {curve}, options);
+  std::printf("%d tiles: PSNR %.2f dB vs the whole image's %.2f dB; tiled vs whole %.2f dB\n", tiled.tiles,
+              psnr(tiled.deblurred, sharp), psnr(whole.deblurred, sharp), psnr(tiled.deblurred, whole.deblurred));
+  EXPECT_EQ(whole.tiles, 1);
+  EXPECT_GE(tiled.tiles, 9);
+  EXPECT_GT(psnr(tiled.deblurred, whole.deblurred), 40.0);
+  EXPECT_GT(psnr(tiled.deblurred, sharp), psnr(whole.deblurred, sharp) - 0.3);
+}
+
 TEST(Deconvolution, RejectsBadOptionsAndKernels) {
   DeconvolutionOptions options;
   options.lambda = 0;
