@@ -112,6 +112,15 @@ struct EffectEntry {
   double gain_threshold = 0;     // min_gain (signal_dependent_noise: min_noise_contrast, on parameters["contrast"])
   std::map<std::string, double> parameters;  // the extended model's fitted parameters
   std::string detail;
+  // Attribution (effect_attribution.cpp): a named effect against the competing explanation that came closest on
+  // the held-back pixels (the runner-up), both fitted on one fold and measured on the other around the same φ.
+  std::string runner_up;         // the runner-up's name (empty: no competitor was tested)
+  double runner_up_gain = 0;     // the runner-up's own relative held-out drop against the same model
+  double evidence_gain = 0;      // relative held-out drop from the runner-up's model to this effect's
+  double evidence_z = 0;         // its score test (as `statistic`); < threshold: the data barely tell them apart
+  // Not named because another effect explains the same misfit on the held-back pixels (exposure_ratio_mismatch:
+  // that effect with r at the EXIF value explains it as well as a free r).
+  std::string explained_by;
 };
 
 struct EffectReport {
