@@ -69,6 +69,9 @@ void attribute(EffectSearch& search, const Problem& fixed_problem, const Spec& f
                     h.gain, h.z);
     search.ratio_explained_by = best->name;
     EffectEntry& named = search.entry(best->name);
+    named.tested = true;
+    named.gain = best->cmp.gain;  // its own test, with r at EXIF's value
+    named.statistic = best->cmp.z;
     named.runner_up = "exposure_ratio_mismatch";
     named.runner_up_gain = e.gain;
     named.evidence_gain = -h.gain;
