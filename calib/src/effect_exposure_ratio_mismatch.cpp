@@ -1,6 +1,13 @@
 // exposure_ratio_mismatch: the exposure ratio a free vs fixed to r_EXIF, each model with its own φ (the fitter with
 // r fixed), within the selected model. Detected only when, in addition to the held-out test, |a / r_EXIF − 1|
 // exceeds ratio_tolerance: nominal EXIF times, ISOs and f-numbers are rounded to 1/3 stop (up to ≈ 6 % each).
+// Attribution (issue 18): EXIF r of a real camera is good to a few per cent, so a free r is the explanation of last
+// resort. Each level effect is also added to the model with r at EXIF's value (its own φ); when one of them
+// explains the held-back pixels about as well as the free r (the free r's held-out drop against it is not
+// significant, z < min_z) and passes its own test against the fixed-r model, that effect is named instead (an offset
+// in one shot bends φ and moves a free r; with the offset modelled, EXIF's r fits). Otherwise the mismatch is named
+// with that best alternative as its runner-up. Within EXIF's tolerance nothing can be named, so the fixed-r fit
+// (the costly part: one fit per channel) is skipped and the test is made around the current φ.
 #include <cmath>
 
 #include "crfcal/error.hpp"
@@ -13,7 +20,7 @@ namespace {
 // The seed's model with r = r_EXIF gets its own best φ (the fitter with r fixed) before the local re-fit: a φ
 // fitted with a free r sits in a different valley (φ^γ trades with r^γ) that the local re-fit cannot leave, so
 // "r fixed" would be judged around the wrong φ. Falls back to the current φ when that fit fails.
-Evaluation fixedRatioEvaluation(const EffectSearch& search, const Spec& fixed) {
+Problem fixedRatioProblem(const EffectSearch& search) {
   const EffectInputs& in = search.in;
   const int nc = search.nc;
   const Spec& current = search.current;
@@ -38,11 +45,43 @@ Evaluation fixedRatioEvaluation(const EffectSearch& search, const Spec& fixed) {
       const cv::Mat& B = in.blurred.at(in.channels[c]);
       fixed_curves[c] = makeCurve(fitInverseCrf(I, B, search.K, fo).inverse_crf);
     }
-    const Problem fixed_problem = search.problemAround(fixed_curves, std::vector<double>(nc, in.nominal_ratio));
-    return fixed_problem.evaluate(fixed);
+    return search.problemAround(fixed_curves, std::vector<double>(nc, in.nominal_ratio));
   } catch (const InvalidInput&) {
-    return search.problem.evaluate(fixed);
+    return search.problem;
   }
+}
+
+// The best level effect with r at EXIF's value (smallest held-out error) against the free r: whether it explains
+// the misfit instead (then its name goes to search.ratio_explained_by), and the evidence either way.
+void attribute(EffectSearch& search, const Problem& fixed_problem, const Spec& fixed, const Evaluation& fe,
+               EffectEntry& e) {
+  const std::vector<Candidate> alternatives = levelCandidates(search, fixed_problem, fixed, fe);
+  const Candidate* best = nullptr;
+  for (const Candidate& c : alternatives)
+    if (c.plausible && (!best || c.eval.total < best->eval.total)) best = &c;
+  if (!best) return;
+  const Comparison h = headToHead(search, best->eval, search.current_eval);
+  if (best->passes && h.z < search.options.min_z) {
+    e.detected = false;
+    e.explained_by = best->name;
+    e.detail += "; not named: " + best->name +
+                fmt(" with r at EXIF explains the held-back pixels as well (free r's drop against it %.4f, z %.2f)",
+                    h.gain, h.z);
+    search.ratio_explained_by = best->name;
+    EffectEntry& named = search.entry(best->name);
+    named.tested = true;
+    named.gain = best->cmp.gain;  // its own test, with r at EXIF's value
+    named.statistic = best->cmp.z;
+    named.runner_up = "exposure_ratio_mismatch";
+    named.runner_up_gain = e.gain;
+    named.evidence_gain = -h.gain;
+    named.evidence_z = -h.z;
+    return;
+  }
+  e.runner_up = best->name;
+  e.runner_up_gain = best->cmp.gain;
+  e.evidence_gain = h.gain;
+  e.evidence_z = h.z;
 }
 
 void run(EffectSearch& search) {
@@ -53,25 +92,29 @@ void run(EffectSearch& search) {
     e.detail = "no EXIF ratio";
     return;
   }
+  const double a = search.coef[search.g_index].scale;
+  const double rel = a / in.nominal_ratio - 1;
+  // a non-positive or non-finite scale is a runaway fit, not a ratio (see physical())
+  const bool beyond_tolerance = a > 0 && std::isfinite(a) && std::abs(rel) > options.ratio_tolerance;
   Spec fixed = search.current;
   fixed.fixed_scale = true;
   fixed.scale = in.nominal_ratio;
-  const Evaluation fe = fixedRatioEvaluation(search, fixed);
+  const Problem fixed_problem = beyond_tolerance ? fixedRatioProblem(search) : Problem{};
+  const Problem& around = beyond_tolerance ? fixed_problem : search.problem;
+  const Evaluation fe = around.evaluate(fixed);
   Comparison cmp = scoreTest(search.problem.samples(), fe, search.current_eval, search.used_fine, search.blocks);
   cmp.gain = fe.total > 0 ? cmp.gain / fe.total : 0;
-  const double a = search.coef[search.g_index].scale;
-  const double rel = a / in.nominal_ratio - 1;
   e.tested = true;
   e.gain = cmp.gain;
   e.statistic = cmp.z;
-  // a non-positive or non-finite scale is a runaway fit, not a ratio (see physical())
-  e.detected = a > 0 && std::isfinite(a) && cmp.gain >= options.min_gain && cmp.z >= options.min_z &&
-               std::abs(rel) > options.ratio_tolerance;
+  e.detected = beyond_tolerance && cmp.gain >= options.min_gain && cmp.z >= options.min_z;
   e.parameters = {{"fitted_ratio", a}, {"nominal_ratio", in.nominal_ratio}, {"relative_difference", rel},
                   {"tolerance", options.ratio_tolerance}};
   e.detail = fmt("fitted r %.4f vs nominal %.4f (%+.1f%%; tolerance of nominal EXIF values ", a, in.nominal_ratio,
                  100 * rel) +
-             fmt("%.0f%%); phi from the free-r fit", 100 * options.ratio_tolerance);
+             fmt("%.0f%%); ", 100 * options.ratio_tolerance) +
+             (beyond_tolerance ? "phi from the free-r fit" : "within tolerance: r = EXIF tested around the current phi");
+  if (e.detected) attribute(search, around, fixed, fe, e);
 }
 
 }  // namespace

@@ -536,6 +536,10 @@ bool physical(const Spec& spec, const Evaluation& ev, int nc, int terms) {
     if (!(std::abs(k.offset) < 1)) return false;
     const double corner = 1 + k.v1 + k.v2;
     if (spec.vignetting && !(corner > 0.1 && corner < 10)) return false;
+    // a colour mix takes less from another channel than from the channel itself (real camera matrices: ≤ 0.6)
+    if (spec.mixing)
+      for (int d = 0; d < nc; ++d)
+        if (d != c && !(std::abs(k.mix[d]) < k.scale)) return false;
   }
   return true;
 }

@@ -281,6 +281,9 @@ struct EffectSearch {
   BlurTest blur;
   std::vector<std::vector<double>> noise_level, noise_sigma;  // per channel: σ(v) bins of I (noise test)
   bool noise_detected = false;
+  // exposure_ratio_mismatch's attribution: the level effect that explains the misfit with r at EXIF's value, to be
+  // named instead of a ratio mismatch (effect_exposure_ratio_mismatch.cpp; empty: none).
+  std::string ratio_explained_by;
 
   EffectEntry& entry(const std::string& name);
   Problem problemAround(const std::vector<Curve>& phi, const std::vector<double>& r) const;
@@ -347,6 +350,30 @@ const LevelEffect& channelMixingEffect();
 const ModelCheck& spatiallyVaryingBlurCheck();
 const ModelCheck& exposureRatioMismatchCheck();
 const ModelCheck& signalDependentNoiseCheck();
+
+// ---- attribution (effect_attribution.cpp) ---------------------------------------------------------------------------
+
+// One competing explanation of the misfit: a level effect added to a model, judged on the held-back pixels.
+struct Candidate {
+  std::string name;
+  Evaluation eval;         // held-out errors of the model with this effect
+  Comparison cmp;          // its own test against the model without it
+  bool plausible = false;  // physical parameters (physical())
+  bool passes = false;     // plausible and its own test passed (min_gain, min_z)
+};
+
+// Every applicable level effect not in `base`, added to it and evaluated on `problem` (the search's own, or one
+// around another φ on the same samples), with its own test against `base_eval`.
+std::vector<Candidate> levelCandidates(const EffectSearch& search, const Problem& problem, const Spec& base,
+                                       const Evaluation& base_eval);
+
+// The held-out drop from the runner-up's model to the winner's, on the same held-back pixels (score test; gain
+// relative to the runner-up's held-out error): how much better the winner explains what both try to explain.
+Comparison headToHead(const EffectSearch& search, const Evaluation& runner_up, const Evaluation& winner);
+
+// The winner's entry gets the runner-up (the other plausible candidate with the smallest held-out error), the
+// runner-up's own gain and headToHead() against it.
+void recordRunnerUp(EffectSearch& search, const Candidate& winner, const std::vector<Candidate>& candidates);
 
 // The registries (effect_search.cpp), in the order they are tested.
 const std::vector<const LevelEffect*>& levelEffects();

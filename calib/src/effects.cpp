@@ -59,6 +59,11 @@ std::string EffectReport::summary() const {
                     e.detail.c_str());
     }
     s << buffer;
+    if (e.detected && !e.runner_up.empty()) {
+      std::snprintf(buffer, sizeof buffer, "\n  %-24s   against the runner-up %s (its gain %.4f): held-out drop %.4f, z %.2f",
+                    "", e.runner_up.c_str(), e.runner_up_gain, e.evidence_gain, e.evidence_z);
+      s << buffer;
+    }
   }
   if (refit_adopted) {
     char buffer[200];

@@ -17,7 +17,11 @@ json effectsJson(const EffectReport& effects) {
   for (const auto& e : effects.entries)
     out.push_back({{"name", e.name}, {"detected", e.detected}, {"tested", e.tested}, {"statistic", e.statistic},
                    {"threshold", e.threshold}, {"gain", e.gain}, {"gain_threshold", e.gain_threshold},
-                   {"parameters", e.parameters}, {"detail", e.detail}});
+                   {"parameters", e.parameters}, {"detail", e.detail},
+                   // attribution: the evidence against the competing explanation that came closest (effects.hpp)
+                   {"runner_up", e.runner_up}, {"runner_up_gain", e.runner_up_gain},
+                   {"evidence_gain", e.evidence_gain}, {"evidence_z", e.evidence_z},
+                   {"explained_by", e.explained_by}});
   return out;
 }
 

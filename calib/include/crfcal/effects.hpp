@@ -34,12 +34,15 @@
 // prediction δ_i = e_base,i − e_ext,i, z = Σ d / (2 σ sqrt(A Σ δ²)) ≥ min_z, with σ² the base model's held-out
 // residual variance and A the residuals' design effect (the variance inflation of 32×32 block sums: spatially
 // correlated or systematically misfit residuals make the test conservative). Clipping acts locally: its drop is
-// taken over the 16×16 blocks that contain plateau samples (chosen from B alone). Effects are added greedily
-// (largest significant gain first); after each, the pair is corrected with the grown model, φ refitted until it
+// taken over the 16×16 blocks that contain plateau samples (chosen from B alone). Effects are added greedily:
+// of the candidates that pass their own test, the one with the smallest held-out error over all held-back pixels
+// first, its runner-up and the held-out drop against it recorded (effect_attribution.cpp); after each, the pair is corrected with the grown model, φ refitted until it
 // settles and the remaining effects re-tested around it, so one planted effect does not make its confounders fire.
 // A backward pass then drops any selected effect that no longer passes the same test inside the final model.
 // exposure_ratio_mismatch in addition needs |a / r_EXIF − 1| > ratio_tolerance (nominal EXIF times, ISOs and
 // f-numbers are rounded to 1/3 stop: up to ≈ 6 % each).
+// It is the explanation of last resort: a level effect that, with r held at r_EXIF, passes its own test and leaves
+// the free r no significant held-out drop against it is named instead (EffectEntry::explained_by).
 // signal_dependent_noise is tested on I itself (its noise is what the seed models; in the residuals above it is
 // averaged by the kernel and hidden under B's quantisation): Immerkær's residual (noise_estimation.hpp) in each of
 // `noise_bins` level bins (equal counts of I's 5×5 local mean), on the 30 % of each bin with the least 7×7 residual
@@ -112,6 +115,15 @@ struct EffectEntry {
   double gain_threshold = 0;     // min_gain (signal_dependent_noise: min_noise_contrast, on parameters["contrast"])
   std::map<std::string, double> parameters;  // the extended model's fitted parameters
   std::string detail;
+  // Attribution (effect_attribution.cpp): a named effect against the competing explanation that came closest on
+  // the held-back pixels (the runner-up), both fitted on one fold and measured on the other around the same φ.
+  std::string runner_up;         // the runner-up's name (empty: no competitor was tested)
+  double runner_up_gain = 0;     // the runner-up's own relative held-out drop against the same model
+  double evidence_gain = 0;      // relative held-out drop from the runner-up's model to this effect's
+  double evidence_z = 0;         // its score test (as `statistic`); < threshold: the data barely tell them apart
+  // Not named because another effect explains the same misfit on the held-back pixels (exposure_ratio_mismatch:
+  // that effect with r at the EXIF value explains it as well as a free r).
+  std::string explained_by;
 };
 
 struct EffectReport {

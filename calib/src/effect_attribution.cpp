@@ -1,0 +1,51 @@
+// Attribution between competing explanations of the same misfit (issue 18): an effect is named because it explains
+// the held-back pixels better than its competitors, not because it was the first to pass its own test. Every
+// candidate is fitted on one fold of the checkerboard and its error measured on the other (effects.hpp), around the
+// same φ, so their held-out errors are comparable; the named effect's evidence against the runner-up is the
+// held-out drop from the runner-up's model to its own, with the same score test as every effect's own test
+// (scoreTest: z = Σ d / (2 σ sqrt(A Σ δ²)), d the per-sample drop, δ the change of prediction).
+#include <algorithm>
+#include <limits>
+
+#include "effect_problem.hpp"
+
+namespace crfcal::effect {
+
+std::vector<Candidate> levelCandidates(const EffectSearch& search, const Problem& problem, const Spec& base,
+                                       const Evaluation& base_eval) {
+  std::vector<Candidate> out;
+  for (const LevelEffect* effect : levelEffects()) {
+    if (effect->not_applicable(search) || effect->in(base)) continue;
+    const Spec extended = effect->extend(base);
+    Candidate c{effect->name, problem.evaluate(extended, true, &base_eval), {}, false, false};
+    c.cmp = effect->test(search, base_eval, c.eval);
+    c.plausible = physical(extended, c.eval, search.nc, search.terms);
+    c.passes = c.plausible && c.cmp.gain >= search.options.min_gain && c.cmp.z >= search.options.min_z;
+    out.push_back(std::move(c));
+  }
+  return out;
+}
+
+Comparison headToHead(const EffectSearch& search, const Evaluation& runner_up, const Evaluation& winner) {
+  Comparison cmp = scoreTest(search.problem.samples(), runner_up, winner, search.used_fine, search.blocks);
+  cmp.gain = runner_up.total > 0 ? cmp.gain / runner_up.total : 0;
+  return cmp;
+}
+
+void recordRunnerUp(EffectSearch& search, const Candidate& winner, const std::vector<Candidate>& candidates) {
+  const Candidate* runner_up = nullptr;
+  for (const Candidate& c : candidates)
+    if (&c != &winner && c.plausible && (!runner_up || c.eval.total < runner_up->eval.total)) runner_up = &c;
+  EffectEntry& e = search.entry(winner.name);
+  if (!runner_up) {
+    e.runner_up.clear();
+    return;
+  }
+  const Comparison h = headToHead(search, runner_up->eval, winner.eval);
+  e.runner_up = runner_up->name;
+  e.runner_up_gain = runner_up->cmp.gain;
+  e.evidence_gain = h.gain;
+  e.evidence_z = h.z;
+}
+
+}  // namespace crfcal::effect
