@@ -8,6 +8,7 @@
 //     cameras' JPEG chart shots calibrated from the reflectances vs the RAW→JPEG truth — the evidence table of
 //     docs/RESULTS.md#chart, the same numbers as `crfcal chart … --truth`.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -38,6 +39,10 @@ namespace fs = std::filesystem;
 struct ChartBenchArgs {
   int seeds = 4;
   std::vector<double> weights{0.0, 1e-4, 1e-3};
+  std::vector<std::string> references{"neutral", "all"};  // chart::ReferenceSet names compared on the cameras
+  bool per_scene = true;
+  double colour_outlier_factor = ChartCalibrationOptions{}.colour_outlier_factor;  // --reference all
+  double grey_weight = ChartCalibrationOptions{}.grey_weight;                      // --reference all   // also each scene's 4 shots alone (besides all 8 shots of a camera in one call)
   double noise = 1.0;      // σ of the JPEG renderings in 8-bit codes (RAW: 0.7 codes)
   std::string data;        // shared data root (Middlebury part)
   bool synthetic = true;
@@ -254,44 +259,121 @@ nlohmann::json runSynthetic(const ChartBenchArgs& args, Progress& progress) {
   return json;
 }
 
+// The cameras used to choose a default between reference sets, and the others on which the choice is reported: every
+// other camera in name order (indices 0, 2, 4, 6, 8 choose; 1, 3, 5, 7, 9 report), fixed before any result was seen.
+bool choosingCamera(size_t index) { return index % 2 == 0; }
+
+double medianOf(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+}
+
+// One calibration of the Middlebury part: a camera's shots (all, or one scene's) with one reference set and weight.
+struct MiddleburyCase {
+  size_t camera = 0;
+  int scene = 0;  // 0 = all shots of the camera
+  size_t reference = 0, weight = 0;
+  std::array<Score, 3> scores{};
+};
+
+// The shape error over the covered range ("aligned") per channel, averaged over the cases of a camera set.
+void printReferenceComparison(const ChartBenchArgs& args, const std::vector<MiddleburyCase>& cases,
+                              const std::vector<std::string>& cameras, size_t weight, nlohmann::json& json) {
+  std::printf("\nreference sets, exponent weight %s: shape error over the covered range (aligned), mean per channel; "
+              "choose = cameras 1, 3, 5, 7, 9 in name order, report = 2, 4, 6, 8, 10\n",
+              weightText(args.weights[weight]).c_str());
+  std::printf("| reference | shots | cameras | R | G | B | RGB mean | R/G | B/G |\n|---|---|---|---|---|---|---|---|---|\n");
+  for (size_t r = 0; r < args.references.size(); ++r)
+    for (const bool scene : {false, true}) {
+      if (scene && !args.per_scene) continue;
+      for (const bool choosing : {true, false}) {
+        double sum[3] = {0, 0, 0};
+        int n = 0;
+        for (const auto& c : cases) {
+          if (c.reference != r || c.weight != weight || (c.scene != 0) != scene || choosingCamera(c.camera) != choosing)
+            continue;
+          for (int ch = 0; ch < 3; ++ch) sum[ch] += c.scores[static_cast<size_t>(ch)].aligned;
+          ++n;
+        }
+        if (n == 0) continue;
+        const double R = sum[0] / n, G = sum[1] / n, B = sum[2] / n;
+        std::printf("| %s | %s | %s | %.4f | %.4f | %.4f | %.4f | %.2f | %.2f |\n", args.references[r].c_str(),
+                    scene ? "4 (one scene)" : "8 (both scenes)", choosing ? "choose" : "report", R, G, B,
+                    (R + G + B) / 3, R / G, B / G);
+        json.push_back({{"reference", args.references[r]}, {"shots", scene ? 4 : 8},
+                        {"cameras", choosing ? "choose" : "report"}, {"R", R}, {"G", G}, {"B", B},
+                        {"rgb", (R + G + B) / 3}, {"exponent_smoothness", args.weights[weight]}});
+      }
+    }
+  (void)cameras;
+}
+
 nlohmann::json runMiddlebury(const ChartBenchArgs& args, const fs::path& root, Progress& progress) {
   const std::vector<std::string> cameras = io::listMiddleburyCameras(root);
   if (cameras.empty()) throw Error("no Middlebury camera folders", root.string());
+  std::vector<chart::ReferenceSet> references;
+  for (const auto& name : args.references) references.push_back(chart::parseReferenceSet(name));
   struct Camera {
     std::string name;
     std::vector<ChartShot> shots;
+    std::vector<int> scenes;
   };
   std::vector<Camera> data;
   for (const auto& camera : cameras) {
-    Camera one{camera, {}};
+    Camera one{camera, {}, {}};
     for (const auto& shot : io::listMiddleburyShots(root / camera)) {
       ChartShot s;
       s.name = shot.name;
+      s.scene = shot.scene;
       s.measured = chart::sampleRectified(io::loadChart(shot.jpg, io::ChartLayout::Rectified).rectified);
       s.raw = chart::sampleRectified(io::loadChart(shot.raw, io::ChartLayout::Rectified).rectified);
       one.shots.push_back(std::move(s));
+      if (std::find(one.scenes.begin(), one.scenes.end(), shot.scene) == one.scenes.end()) one.scenes.push_back(shot.scene);
     }
     data.push_back(std::move(one));
   }
-  // results[weight][camera] = 3 channel scores
-  std::vector<std::vector<std::array<Score, 3>>> results(args.weights.size(),
-                                                         std::vector<std::array<Score, 3>>(data.size()));
-  const int jobs = int(args.weights.size() * data.size());
+  // The truth per weight and camera: `crfcal chart JPEG… --raw RAW…` on all shots (grey patches, one RAW scale).
+  std::vector<std::vector<ChartCalibrationResult>> truth(args.weights.size(), std::vector<ChartCalibrationResult>(data.size()));
+  std::vector<MiddleburyCase> cases;
+  for (size_t w = 0; w < args.weights.size(); ++w)
+    for (size_t r = 0; r < references.size(); ++r)
+      for (size_t i = 0; i < data.size(); ++i) {
+        cases.push_back({i, 0, r, w, {}});
+        if (args.per_scene)
+          for (int scene : data[i].scenes) cases.push_back({i, scene, r, w, {}});
+      }
+  const int truth_jobs = int(args.weights.size() * data.size());
+  const int jobs = truth_jobs + int(cases.size());
   std::mutex mutex;
   int done = 0;
-  cv::parallel_for_(cv::Range(0, jobs), [&](const cv::Range& range) {
+  cv::parallel_for_(cv::Range(0, truth_jobs), [&](const cv::Range& range) {
     for (int job = range.start; job < range.end; ++job) {
       const size_t w = size_t(job) / data.size(), i = size_t(job) % data.size();
-      ChartCalibrationOptions truth_options;  // `crfcal chart JPEG… --raw RAW…` (grey patches, one RAW scale)
+      ChartCalibrationOptions truth_options;
       truth_options.use_raw = true;
       truth_options.raw_neutral_only = true;
       truth_options.fit.exponent_smoothness = args.weights[w];
-      ChartCalibrationOptions options;  // `crfcal chart JPEG…` (grey reflectances, a free scale per shot)
-      options.fit.exponent_smoothness = args.weights[w];
-      const ChartCalibrationResult truth = calibrateChart(data[i].shots, truth_options);
-      const ChartCalibrationResult fit = calibrateChart(data[i].shots, options);
+      truth[w][i] = calibrateChart(data[i].shots, truth_options);
+      std::lock_guard lock(mutex);
+      progress.update(double(++done) / jobs);
+    }
+  });
+  cv::parallel_for_(cv::Range(0, int(cases.size())), [&](const cv::Range& range) {
+    for (int job = range.start; job < range.end; ++job) {
+      MiddleburyCase& one = cases[static_cast<size_t>(job)];
+      ChartCalibrationOptions options;  // `crfcal chart JPEG… --reference R` (no exposures: free per shot)
+      options.reference = references[one.reference];
+      options.colour_outlier_factor = args.colour_outlier_factor;
+      options.grey_weight = args.grey_weight;
+      options.fit.exponent_smoothness = args.weights[one.weight];
+      std::vector<ChartShot> shots;
+      for (const auto& s : data[one.camera].shots)
+        if (one.scene == 0 || s.scene == one.scene) shots.push_back(s);
+      const ChartCalibrationResult fit = calibrateChart(shots, options);
+      const ChartCalibrationResult& t = truth[one.weight][one.camera];
       for (size_t c = 0; c < 3; ++c)
-        results[w][i][c] = score(truth.channels[c].fit.inverse, fit.channels[c], truth.channels[c].fit.covered_range);
+        one.scores[c] = score(t.channels[c].fit.inverse, fit.channels[c], t.channels[c].fit.covered_range);
       std::lock_guard lock(mutex);
       progress.update(double(++done) / jobs);
     }
@@ -299,54 +381,62 @@ nlohmann::json runMiddlebury(const ChartBenchArgs& args, const fs::path& root, P
   progress.done();
 
   nlohmann::json json = nlohmann::json::array();
-  std::printf("\nMiddlebury (%s): chart calibration from the JPEG shots (grey reflectances) vs RAW->JPEG truth\n",
-              root.string().c_str());
-  std::printf("%-12s %9s %9s %9s %10s %10s %9s\n", "exp. weight", "median", "mean full", "max full", "median cov",
-              "med. align", "max align");
-  for (size_t w = 0; w < args.weights.size(); ++w) {
-    std::vector<Score> all;
-    std::vector<double> covered, aligned;
-    for (const auto& camera : results[w])
-      for (const auto& s : camera) all.push_back(s), covered.push_back(s.covered), aligned.push_back(s.aligned);
-    const Summary s = summarise(all);
-    std::sort(covered.begin(), covered.end());
-    std::sort(aligned.begin(), aligned.end());
-    const auto median = [](const std::vector<double>& v) {
-      return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
-    };
-    std::printf("%-12s %9.4f %9.4f %9.4f %10.4f %10.4f %9.4f\n", weightText(args.weights[w]).c_str(), s.median_full,
-                s.mean_full, s.max_full, median(covered), median(aligned), s.max_aligned);
-    nlohmann::json entry = toJson(s);
-    entry["exponent_smoothness"] = args.weights[w];
-    entry["median_covered"] = median(covered);
-    entry["median_aligned"] = median(aligned);
-    entry["cameras"] = nlohmann::json::object();
-    for (size_t i = 0; i < data.size(); ++i)
-      for (size_t c = 0; c < 3; ++c)
-        entry["cameras"][data[i].name][channelName(int(c))] = {{"full", results[w][i][c].full},
-                                                              {"covered", results[w][i][c].covered},
-                                                              {"aligned", results[w][i][c].aligned}};
-    json.push_back(entry);
-  }
-  // The per-camera table for the library's default weight (or the last one given).
+  std::printf("\nMiddlebury (%s): chart calibration from the JPEG shots (all 8 shots of a camera per call) vs RAW->JPEG "
+              "truth\n", root.string().c_str());
+  std::printf("%-12s %-10s %9s %9s %9s %10s %10s %9s\n", "exp. weight", "reference", "median", "mean full", "max full",
+              "median cov", "med. align", "max align");
+  for (size_t w = 0; w < args.weights.size(); ++w)
+    for (size_t r = 0; r < references.size(); ++r) {
+      std::vector<Score> all;
+      std::vector<double> covered, aligned;
+      nlohmann::json per_camera = nlohmann::json::object();
+      for (const auto& c : cases) {
+        if (c.weight != w || c.reference != r || c.scene != 0) continue;
+        for (size_t ch = 0; ch < 3; ++ch) {
+          const Score& s = c.scores[ch];
+          all.push_back(s), covered.push_back(s.covered), aligned.push_back(s.aligned);
+          per_camera[data[c.camera].name][channelName(int(ch))] = {
+              {"full", s.full}, {"covered", s.covered}, {"aligned", s.aligned}};
+        }
+      }
+      const Summary s = summarise(all);
+      std::printf("%-12s %-10s %9.4f %9.4f %9.4f %10.4f %10.4f %9.4f\n", weightText(args.weights[w]).c_str(),
+                  args.references[r].c_str(), s.median_full, s.mean_full, s.max_full, medianOf(covered),
+                  medianOf(aligned), s.max_aligned);
+      nlohmann::json entry = toJson(s);
+      entry["exponent_smoothness"] = args.weights[w];
+      entry["reference"] = args.references[r];
+      entry["median_covered"] = medianOf(covered);
+      entry["median_aligned"] = medianOf(aligned);
+      entry["cameras"] = per_camera;
+      json.push_back(entry);
+    }
+  // The per-camera tables for the library's default weight (or the last one given).
   size_t shown = args.weights.size() - 1;
   for (size_t w = 0; w < args.weights.size(); ++w)
     if (args.weights[w] == ScaledFitOptions{}.exponent_smoothness) shown = w;
-  std::printf("\nper camera, exponent weight %s: phi RMSE full [0,1] / covered / covered scale-aligned\n",
-              weightText(args.weights[shown]).c_str());
-  std::printf("| camera | R: full / covered / aligned | G: full / covered / aligned | B: full / covered / aligned |\n");
-  std::printf("|---|---|---|---|\n");
-  for (size_t i = 0; i < data.size(); ++i) {
-    std::printf("| %s |", data[i].name.c_str());
-    for (const auto& s : results[shown][i]) std::printf(" %.3f / %.3f / %.3f |", s.full, s.covered, s.aligned);
-    std::printf("\n");
+  for (size_t r = 0; r < references.size(); ++r) {
+    std::printf("\nper camera, reference %s, exponent weight %s, all 8 shots: phi RMSE full [0,1] / covered / covered "
+                "scale-aligned\n", args.references[r].c_str(), weightText(args.weights[shown]).c_str());
+    std::printf("| camera | R: full / covered / aligned | G: full / covered / aligned | B: full / covered / aligned |\n");
+    std::printf("|---|---|---|---|\n");
+    for (const auto& c : cases) {
+      if (c.weight != shown || c.reference != r || c.scene != 0) continue;
+      std::printf("| %s |", data[c.camera].name.c_str());
+      for (const auto& s : c.scores) std::printf(" %.3f / %.3f / %.3f |", s.full, s.covered, s.aligned);
+      std::printf("\n");
+    }
   }
-  return json;
+  nlohmann::json comparison = nlohmann::json::array();
+  printReferenceComparison(args, cases, cameras, shown, comparison);
+  return {{"weights", json}, {"reference_comparison", comparison}};
 }
 
 int runChartBench(const ChartBenchArgs& args) {
   if (args.seeds < 1) throw InvalidInput("--seeds must be at least 1");
   if (args.weights.empty()) throw InvalidInput("--exponent-smoothness needs at least one weight");
+  if (args.references.empty()) throw InvalidInput("--reference needs at least one reference set");
+  for (const auto& r : args.references) chart::parseReferenceSet(r);  // refused before the computation
   for (double w : args.weights)
     if (!(w >= 0)) throw InvalidInput("--exponent-smoothness weights must be >= 0");
   const io::OutputPolicy policy{"bench chart", {io::defaultSharedData(args.data)}, args.force};
@@ -381,6 +471,19 @@ const BenchRegistration registration(
       command.add_option("--exponent-smoothness", args->weights,
                          "Weights of the local-exponent penalty to compare (ScaledFitOptions::exponent_smoothness)")
           ->delimiter(',');
+      command.add_option("--reference", args->references,
+                         "Reference sets to compare on the cameras (crfcal chart --reference): neutral, all, srgb, "
+                         "luminance")
+          ->delimiter(',');
+      command.add_flag("!--no-per-scene", args->per_scene,
+                       "Only all 8 shots of a camera per call (not also each scene's 4 shots alone)");
+      command.add_option("--colour-outliers", args->colour_outlier_factor,
+                         "--reference all: coloured patches misfitting by more than this many times the median are "
+                         "left out (0 = keep all)")
+          ->check(CLI::NonNegativeNumber);
+      command.add_option("--grey-weight", args->grey_weight,
+                         "--reference all: weight of a grey patch sample relative to a coloured one")
+          ->check(CLI::PositiveNumber);
       command.add_option("--noise", args->noise, "Noise sigma of the synthetic JPEG renderings, 8-bit codes")
           ->check(CLI::NonNegativeNumber);
       command.add_option("--data", args->data, "Shared data directory (default $CRFCAL_SHARED_DATA or ../shared/data)");

@@ -27,9 +27,10 @@ struct ChartArgs {
   std::vector<std::string> raws;
   std::vector<std::string> corners;
   std::string layout = "auto";
-  std::string reference = "neutral";
+  std::string reference = "all";  // measured better than "neutral" on the Middlebury cameras (docs/RESULTS.md#chart)
   std::string patches = "neutral";
   std::string exposures;
+  std::string scenes;  // --scenes: a scene label per image (default: one scene)
   bool no_exif = false;
   std::string truth;
   std::string output;
@@ -94,6 +95,19 @@ void requireExposuresFollowBrightness(const std::vector<ChartShot>& shots, const
     }
 }
 
+// --scenes: one label per IMAGE (any integers; equal labels = the same scene: chart, light and white balance).
+std::vector<int> parseScenes(const std::string& text, size_t images) {
+  std::vector<int> scenes;
+  for (const double v : parseList(text, "--scenes")) {
+    if (v != std::floor(v) || std::abs(v) > 1e6) throw InvalidInput("--scenes: " + text + ": labels must be integers");
+    scenes.push_back(int(v));
+  }
+  if (scenes.size() != images)
+    throw InvalidInput("--scenes needs one label per IMAGE (" + std::to_string(images) + ", got " +
+                       std::to_string(scenes.size()) + ")");
+  return scenes;
+}
+
 double secondsSince(std::chrono::steady_clock::time_point from) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - from).count();
 }
@@ -143,6 +157,7 @@ void sampleShot(const ChartArgs& args, const ChartCalibrationOptions& options, c
     const io::LoadedChart raw = io::loadChart(args.raws[i], layout, loaded.corners);
     shot.raw = chart::sampleRectified(raw.rectified, args.sampling);
   }
+  if (!args.scenes.empty()) shot.scene = parseScenes(args.scenes, args.images.size())[i];
   if (!exposures.empty()) shot.exposure = exposures[i];
   else if (!args.no_exif && !options.use_raw) {
     const ExifExposure exif = io::readExif(args.images[i]);
@@ -235,6 +250,13 @@ io::CalibrationReport chartReport(const ChartArgs& args, const ChartCalibrationO
                            {"inputs", sampled.inputs},
                            {"channels", channels_json},
                            {"inverse_crf_model", "emor (models: its GGCM conversion, seed Eq. 19)"}};
+  // --reference all: the relative exposure of each shot the fit used (given or fitted; the brightest = 1), its scene.
+  if (!result.exposures.empty()) {
+    report.extra["chart"]["exposures"] = result.exposures;
+    nlohmann::json scenes = nlohmann::json::array();
+    for (const auto& shot : sampled.shots) scenes.push_back(shot.scene);
+    report.extra["chart"]["scenes"] = scenes;
+  }
   report.extra["patch_residuals"] = patches_json;
   return report;
 }
@@ -286,6 +308,7 @@ int runChart(ChartArgs args) {
   const ChartCalibrationOptions options = chartOptions(args);
   std::vector<double> exposures;
   if (!args.exposures.empty()) exposures = parseExposures(args.exposures, args.images.size());
+  if (!args.scenes.empty()) parseScenes(args.scenes, args.images.size());  // refused before any output
 
   // Decided before the computation: a refused or unwritable output directory fails at once.
   std::vector<std::filesystem::path> input_files(args.images.begin(), args.images.end());
@@ -355,14 +378,22 @@ const CommandRegistration registration(
                          "x1,y1,x2,y2,x3,y3,x4,y4: outer corners of the patch grid at dark skin, bluish green, "
                          "black, white (once for all images or once per image)");
       command.add_option("--reference", args->reference,
-                         "Published reference: neutral (6 greys, Y; default) | srgb (24 patches, linear sRGB of the "
-                         "channel) | luminance (24 patches, Y)")
-          ->check(CLI::IsMember({"neutral", "srgb", "luminance"}));
+                         "Reference: all (default; 24 patches: the greys' Y anchor, each coloured patch an unknown "
+                         "irradiance shared by the shots of a scene) | neutral (6 greys, Y) | srgb (24 "
+                         "patches, linear sRGB of the channel) | luminance (24 patches, Y)")
+          ->check(CLI::IsMember({"neutral", "all", "srgb", "luminance"}));
       command.add_option("--patches", args->patches, "With --raw: patches used (neutral = the 6 greys)")
           ->check(CLI::IsMember({"all", "neutral"}));
       command.add_option("--exposures", args->exposures,
                          "Relative exposures e1,e2,… of the shots (default: EXIF ISO·t/N²; without EXIF one free "
                          "scale per shot)");
+      command.add_option("--scenes", args->scenes,
+                         "With --reference all: a scene label per image, e.g. 1,1,1,1,2,2,2,2 (shots of one scene share "
+                         "chart, light and white balance; default: all one scene)");
+      command.add_option("--colour-outliers", args->options.colour_outlier_factor,
+                         "With --reference all: leave out coloured patches misfitting the channel's curve by more than "
+                         "this many times the median patch (0 = keep all)")
+          ->check(CLI::NonNegativeNumber);
       command.add_flag("--no-exif", args->no_exif, "Ignore EXIF: one free exposure scale per shot");
       command.add_option("--channels", args->channels, "Channels to calibrate (letters of RGB)");
       command.add_option("--terms", args->options.fit.terms, "EMoR terms K (0 = cross-validation)")

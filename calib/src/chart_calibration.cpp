@@ -11,6 +11,7 @@
 
 #include "crfcal/emor.hpp"
 #include "crfcal/error.hpp"
+#include "chart_stages.hpp"
 
 namespace crfcal {
 namespace {
@@ -388,6 +389,10 @@ void ChartCalibrationOptions::check() const {
   if (channels.empty()) throw InvalidInput("chart calibration: no channels");
   for (int c : channels)
     if (c < 0 || c > 2) throw InvalidInput("chart calibration: channel must be 0, 1 or 2");
+  if (exposure_rounds < 0) throw InvalidInput("chart calibration: exposure_rounds must be ≥ 0");
+  if (!(colour_floor >= 0 && colour_floor < 0.5)) throw InvalidInput("chart calibration: colour_floor must be in [0, 0.5)");
+  if (!(colour_outlier_factor >= 0)) throw InvalidInput("chart calibration: colour_outlier_factor must be ≥ 0");
+  if (!(grey_weight > 0)) throw InvalidInput("chart calibration: grey_weight must be > 0");
 }
 
 std::string ChartCalibrationResult::summary() const {
@@ -398,10 +403,55 @@ std::string ChartCalibrationResult::summary() const {
   return out.str();
 }
 
+namespace detail {
+
+ChartChannelResult fitChartChannel(int c, std::vector<ScaledObservation> observations, size_t exact,
+                                   const std::vector<std::pair<int, int>>& origin, const ChartCalibrationOptions& options,
+                                   std::vector<std::string>& warnings) {
+  ChartChannelResult channel;
+  channel.channel = c;
+  if (exact < 4)
+    throw InvalidInput("channel " + channelName(c) + ": only " + std::to_string(exact) +
+                       " usable patch samples (need ≥ 4)");
+  // Leave-one-out folds need at least two distinct folds; fall back to a fixed K otherwise.
+  ScaledFitOptions fit_options = options.fit;
+  {
+    std::vector<int> folds;
+    for (const auto& o : observations) folds.push_back(o.fold);
+    std::sort(folds.begin(), folds.end());
+    const auto distinct = std::unique(folds.begin(), folds.end()) - folds.begin();
+    if (distinct < 3 && fit_options.terms == 0) {
+      fit_options.terms = std::min(3, options.fit.max_terms);
+      warnings.push_back("channel " + channelName(c) + ": too few folds for cross-validation, K = " +
+                         std::to_string(fit_options.terms));
+    }
+  }
+  channel.fit = fitScaledInverse(observations, fit_options);
+  const ggcm::FitResult g = ggcm::fitInverse(channel.fit.inverse, options.ggcm);
+  channel.ggcm = g.model;
+  channel.ggcm_valid = g.valid;
+  channel.ggcm_rmse = curveRmse(sampleInverse(g.model, kCurveSamples), channel.fit.inverse);
+  for (size_t i = 0; i < exact; ++i) {
+    const double s = channel.fit.scales[static_cast<size_t>(observations[i].group)];
+    channel.patches.push_back({origin[i].first, origin[i].second, observations[i].x,
+                               s > 0 ? observations[i].y / s : 0.0, channel.fit.residuals[i]});
+  }
+  if (channel.fit.covered_range.second - channel.fit.covered_range.first < 0.5)
+    warnings.push_back("channel " + channelName(c) + ": data cover only x in [" +
+                       std::to_string(channel.fit.covered_range.first) + ", " +
+                       std::to_string(channel.fit.covered_range.second) +
+                       "]; the rest of the curve is the EMoR model's extrapolation");
+  return channel;
+}
+
+}  // namespace detail
+
 ChartCalibrationResult calibrateChart(const std::vector<ChartShot>& shots, const ChartCalibrationOptions& options,
                                       const ProgressCallback& progress) {
   options.check();
   if (shots.empty()) throw InvalidInput("chart calibration needs at least one shot");
+  if (!options.use_raw && options.reference == chart::ReferenceSet::AllPatches)
+    return detail::calibrateChartAllPatches(shots, options, progress);
   bool all_exposures = true;
   double reference_exposure = 0;
   for (const auto& shot : shots) {
@@ -470,37 +520,9 @@ ChartCalibrationResult calibrateChart(const std::vector<ChartShot>& shots, const
     }
     const size_t exact = observations.size();
     observations.insert(observations.end(), censored.begin(), censored.end());
-    if (exact < 4)
-      throw InvalidInput("channel " + channelName(c) + ": only " + std::to_string(exact) +
-                         " usable patch samples (need ≥ 4)");
-    // Leave-one-out folds need at least two distinct folds; fall back to a fixed K otherwise.
-    ScaledFitOptions fit_options = options.fit;
-    {
-      std::vector<int> folds;
-      for (const auto& o : observations) folds.push_back(o.fold);
-      std::sort(folds.begin(), folds.end());
-      const auto distinct = std::unique(folds.begin(), folds.end()) - folds.begin();
-      if (distinct < 3 && fit_options.terms == 0) {
-        fit_options.terms = std::min(3, options.fit.max_terms);
-        result.warnings.push_back("channel " + channelName(c) + ": too few folds for cross-validation, K = " +
-                                  std::to_string(fit_options.terms));
-      }
-    }
-    channel.fit = fitScaledInverse(observations, fit_options);
-    const ggcm::FitResult g = ggcm::fitInverse(channel.fit.inverse, options.ggcm);
-    channel.ggcm = g.model;
-    channel.ggcm_valid = g.valid;
-    channel.ggcm_rmse = curveRmse(sampleInverse(g.model, kCurveSamples), channel.fit.inverse);
-    for (size_t i = 0; i < exact; ++i) {
-      const double s = channel.fit.scales[static_cast<size_t>(observations[i].group)];
-      channel.patches.push_back({origin[i].first, origin[i].second, observations[i].x,
-                                 s > 0 ? observations[i].y / s : 0.0, channel.fit.residuals[i]});
-    }
-    if (channel.fit.covered_range.second - channel.fit.covered_range.first < 0.5)
-      result.warnings.push_back("channel " + channelName(c) + ": data cover only x in [" +
-                                std::to_string(channel.fit.covered_range.first) + ", " +
-                                std::to_string(channel.fit.covered_range.second) +
-                                "]; the rest of the curve is the EMoR model's extrapolation");
+    const int rejected = channel.rejected;
+    channel = detail::fitChartChannel(c, std::move(observations), exact, origin, options, result.warnings);
+    channel.rejected = rejected;
     result.channels.push_back(std::move(channel));
     if (progress) progress(double(ci + 1) / double(options.channels.size()), channelName(c));
   }

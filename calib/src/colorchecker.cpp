@@ -79,7 +79,8 @@ ReferenceSet parseReferenceSet(const std::string& name) {
   if (name == "neutral") return ReferenceSet::Neutral;
   if (name == "srgb") return ReferenceSet::LinearSrgb;
   if (name == "luminance") return ReferenceSet::Luminance;
-  throw InvalidInput("unknown chart reference '" + name + "' (neutral | srgb | luminance)");
+  if (name == "all") return ReferenceSet::AllPatches;
+  throw InvalidInput("unknown chart reference '" + name + "' (neutral | srgb | luminance | all)");
 }
 
 std::string referenceSetName(ReferenceSet set) {
@@ -87,6 +88,7 @@ std::string referenceSetName(ReferenceSet set) {
     case ReferenceSet::Neutral: return "neutral";
     case ReferenceSet::LinearSrgb: return "srgb";
     case ReferenceSet::Luminance: return "luminance";
+    case ReferenceSet::AllPatches: return "all";
   }
   return "?";
 }
@@ -97,6 +99,7 @@ std::optional<double> referenceValue(ReferenceSet set, int patch, int channel) {
   double value = 0;
   switch (set) {
     case ReferenceSet::Neutral:
+    case ReferenceSet::AllPatches:
       if (!p.neutral) return std::nullopt;
       value = p.Y;
       break;

@@ -1,6 +1,7 @@
 #include "crfcal/io/chart_io.hpp"
 
 #include <algorithm>
+#include <cstdlib>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -103,7 +104,12 @@ std::vector<MiddleburyShot> listMiddleburyShots(const fs::path& camera_dir) {
     const std::string stem = name.substr(0, name.size() - suffix.size());
     const fs::path raw = camera_dir / (stem + "-raw.png");
     if (!fs::exists(raw)) continue;
-    shots.push_back({stem, entry.path(), raw});
+    // "wb1i2e3": illumination 2, exposure 3.
+    const auto lit = stem.find('i'), exposure = stem.rfind('e');
+    int scene = 0;
+    if (lit != std::string::npos && exposure != std::string::npos && exposure > lit + 1)
+      scene = std::atoi(stem.substr(lit + 1, exposure - lit - 1).c_str());
+    shots.push_back({stem, entry.path(), raw, scene});
   }
   std::sort(shots.begin(), shots.end(), [](const auto& a, const auto& b) { return a.name < b.name; });
   return shots;

@@ -94,6 +94,8 @@ struct ChartShot {
   std::vector<chart::PatchStats> measured;
   std::vector<chart::PatchStats> raw;  // empty unless a RAW reference is given
   double exposure = 0;                 // relative exposure (e.g. from EXIF); 0 = unknown (a free scale per shot)
+  int scene = 0;  // shots of one scene (same chart, same light) share the coloured patches' irradiances
+                  // (ReferenceSet::AllPatches); another light or white balance is another scene
 };
 
 struct ChartCalibrationOptions {
@@ -104,6 +106,19 @@ struct ChartCalibrationOptions {
   ScaledFitOptions fit;           // K chosen by leave-one-patch-out CV (leave-one-shot-out with RAW)
   ggcm::FitOptions ggcm;          // conversion of the EMoR result to GGCM (seed Eq. 19, [28]), n = 4
   std::vector<int> channels{0, 1, 2};  // R, G, B
+  // ReferenceSet::AllPatches without exposures for every shot: rounds alternating the curves (K = 3, all channels)
+  // with the shots' exposures (one per shot, shared by R, G, B), before the final fit with cross-validated K.
+  int exposure_rounds = 4;
+  // ReferenceSet::AllPatches: a coloured patch's channel below this (unit scale) is not data (the camera's colour
+  // matrix can push a saturated colour below zero, where the JPEG clips; the bracket's noise floor).
+  double colour_floor = 0.02;
+  // ReferenceSet::AllPatches: a coloured patch whose RMS relative misfit to the channel's curve exceeds this many
+  // times the median patch's is left out (a camera's gamut mapping or hue-dependent rendering is not one curve per
+  // channel); 0 = keep all.
+  double colour_outlier_factor = 3;
+  // ReferenceSet::AllPatches: weight of a grey sample relative to a coloured one. 1: on the five Middlebury cameras
+  // the choice was made on, 3 (greys weighing as much as the 18 colours) was worse (docs/RESULTS.md#chart).
+  double grey_weight = 1;
   void check() const;
 };
 
@@ -128,6 +143,9 @@ struct ChartChannelResult {
 
 struct ChartCalibrationResult {
   std::vector<ChartChannelResult> channels;
+  // ReferenceSet::AllPatches: the relative exposure of each shot used by the fit (given, or fitted; the brightest
+  // shot of the set = 1). Empty otherwise.
+  std::vector<double> exposures;
   std::vector<std::string> warnings;
   std::string summary() const;
 };

@@ -35,8 +35,12 @@ enum class ReferenceSet {
   LinearSrgb,  // all 24 patches, reference = the linear sRGB value of the channel (assumes the camera's
                // colour rendering matches sRGB primaries; biased by the camera's colour mixing)
   Luminance,   // all 24 patches, reference = Y
+  AllPatches,  // all 24 patches, no published colour needed: the six greys anchor (Y, as Neutral) and each coloured
+               // patch is an unknown per-channel irradiance shared by the shots of one scene, which the shots'
+               // exposure ratios tie to the curve (the bracket model of bracket_calibration.hpp). Camera-independent:
+               // the camera's colour matrix only changes the unknowns. referenceValue gives the greys' Y.
 };
-ReferenceSet parseReferenceSet(const std::string& name);  // "neutral" | "srgb" | "luminance"
+ReferenceSet parseReferenceSet(const std::string& name);  // "neutral" | "srgb" | "luminance" | "all"
 std::string referenceSetName(ReferenceSet set);
 // Reference value of `patch` for channel c (0 = R, 1 = G, 2 = B) or nullopt when the set does not use it.
 std::optional<double> referenceValue(ReferenceSet set, int patch, int channel);

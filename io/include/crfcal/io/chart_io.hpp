@@ -40,6 +40,7 @@ LoadedChart loadChart(const std::filesystem::path& path, ChartLayout layout,
 struct MiddleburyShot {
   std::string name;  // e.g. "wb1i2e3"
   std::filesystem::path jpg, raw;
+  int scene = 0;     // the illumination, "i<k>" of the name (0 when absent): shots of a scene differ in exposure only
 };
 // Camera folder names (sorted) that contain at least one jpg/raw pair. Throws Error if `root` is not a directory.
 std::vector<std::string> listMiddleburyCameras(const std::filesystem::path& root);

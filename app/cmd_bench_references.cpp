@@ -1,0 +1,297 @@
+// crfcal bench references: the static references of issue 21 side by side on real cameras — OpenCV's
+// CalibrateDebevec / CalibrateRobertson (calib/opencv_calibrators.hpp, as `bench bracket` calls them), `crfcal chart`
+// (calibrateChart, as `bench chart`), `crfcal chart` with the exposures given, and `crfcal bracket` (calibrateBracket)
+// — on the same 4 JPEG shots of each Middlebury camera and scene, scored against the camera's RAW→JPEG truth
+// (`crfcal chart JPEG… --raw RAW…` on all its shots, as `bench chart`). The exposure times OpenCV's calibrators need
+// (and the "exposures given" rows) come from the linear RAW shots' grey patches.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <ctime>
+#include <filesystem>
+#include <map>
+#include <memory>
+
+#include <nlohmann/json.hpp>
+
+#include "bench_command.hpp"
+#include "crfcal/bracket_calibration.hpp"
+#include "crfcal/chart_calibration.hpp"
+#include "crfcal/colorchecker.hpp"
+#include "crfcal/curve_comparison.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/opencv_calibrators.hpp"
+#include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/chart_io.hpp"
+#include "crfcal/io/datasets.hpp"
+#include "crfcal/io/image_io.hpp"
+#include "crfcal/io/output_guard.hpp"
+#include "progress.hpp"
+
+namespace crfcal::app {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct ReferencesBenchArgs {
+  std::string data;  // shared data root holding middlebury/; default $CRFCAL_SHARED_DATA or ../shared/data
+  std::string json;
+  bool force = false;
+  bool quiet = false;
+};
+
+// One scene of one camera: its 4 exposures (JPEG frames, their sampled patches) and the RAW-derived exposures.
+struct SceneShots {
+  std::string camera;
+  int scene = 0;
+  std::vector<cv::Mat> frames;       // BGR 8-bit JPEG renderings (the rectified chart)
+  std::vector<ChartShot> shots;      // measured = JPEG patches, raw = RAW patches
+  std::vector<double> exposures;     // relative, from the RAW greys
+};
+
+// Relative exposure of each shot from its linear RAW greys: per channel the median over usable greys of
+// log(raw / Y), averaged over the channels (each channel's white-balance factor is the same in every shot).
+std::vector<double> rawExposures(const std::vector<ChartShot>& shots) {
+  std::vector<double> exposures;
+  for (const auto& shot : shots) {
+    double sum = 0;
+    int channels = 0;
+    for (size_t c = 0; c < 3; ++c) {
+      std::vector<double> logs;
+      for (int p = 0; p < chart::kPatches; ++p) {
+        const auto& ref = chart::reference()[static_cast<size_t>(p)];
+        const chart::PatchStats& raw = shot.raw[static_cast<size_t>(p)];
+        if (ref.neutral && raw.usable() && raw.median[c] > 0.01) logs.push_back(std::log(raw.median[c] / ref.Y));
+      }
+      if (logs.empty()) continue;
+      std::sort(logs.begin(), logs.end());
+      sum += logs[logs.size() / 2];
+      ++channels;
+    }
+    if (channels == 0) throw InvalidInput("no usable grey patch in the RAW shot", shot.name);
+    exposures.push_back(std::exp(sum / channels));
+  }
+  return exposures;
+}
+
+struct Method {
+  std::string name;
+  std::vector<double> error[3];   // shape error per case and channel
+  std::vector<double> cpu_seconds, wall_seconds;
+  int failed = 0;
+};
+
+double median(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+}
+
+double mean(const std::vector<double>& v) {
+  double s = 0;
+  for (double x : v) s += x;
+  return v.empty() ? std::nan("") : s / double(v.size());
+}
+
+// The range every method is scored on, per channel: the truth's covered range ∩ the range of the usable patch values
+// of the 4 JPEG shots (what any method could have seen).
+IntensityRange scoredRange(const SceneShots& scene, int c, IntensityRange truth_covered) {
+  double lo = 1, hi = 0;
+  for (const auto& shot : scene.shots)
+    for (const auto& p : shot.measured)
+      if (p.usable()) lo = std::min(lo, p.median[static_cast<size_t>(c)]), hi = std::max(hi, p.median[static_cast<size_t>(c)]);
+  return {std::max(lo, truth_covered.first), std::min(hi, truth_covered.second)};
+}
+
+double shapeError(const std::vector<double>& truth, const std::vector<double>& estimate, IntensityRange range) {
+  for (double v : estimate)
+    if (!std::isfinite(v)) return std::nan("");
+  return compareCurves(truth, estimate, range, range).rmse_covered_aligned;
+}
+
+// Runs one method on one scene (timed) and records its three channels' shape errors.
+template <typename Calibrate>
+void runMethod(Method& method, const Calibrate& calibrate, const ChartCalibrationResult& truth, const SceneShots& scene,
+               nlohmann::json& row) {
+  const auto wall = std::chrono::steady_clock::now();
+  const std::clock_t cpu = std::clock();
+  std::vector<std::vector<double>> curves;
+  try {
+    curves = calibrate();
+  } catch (const InvalidInput& e) {
+    ++method.failed;
+    row[method.name] = {{"error", e.what()}};
+    return;
+  }
+  method.cpu_seconds.push_back(double(std::clock() - cpu) / CLOCKS_PER_SEC);
+  method.wall_seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - wall).count());
+  bool finite = true;
+  for (int c = 0; c < 3; ++c) {
+    const auto& t = truth.channels[static_cast<size_t>(c)].fit;
+    const double e = shapeError(t.inverse, curves[static_cast<size_t>(c)], scoredRange(scene, c, t.covered_range));
+    if (std::isfinite(e)) method.error[c].push_back(e);
+    finite = finite && std::isfinite(e);
+    row[method.name][channelName(c)] = std::isfinite(e) ? nlohmann::json(e) : nlohmann::json(nullptr);
+  }
+  method.failed += !finite;
+}
+
+// `crfcal chart` (its default --reference all) on the scene's JPEG shots (patch sampling included in the time), with or without exposures.
+std::vector<std::vector<double>> chartCurves(const SceneShots& scene, bool exposures_given) {
+  std::vector<ChartShot> shots;
+  for (size_t j = 0; j < scene.frames.size(); ++j) {
+    ChartShot shot;
+    shot.name = scene.shots[j].name;
+    shot.scene = scene.scene;
+    shot.measured = chart::sampleRectified(scene.frames[j]);
+    if (exposures_given) shot.exposure = scene.exposures[j];
+    shots.push_back(std::move(shot));
+  }
+  ChartCalibrationOptions options;
+  options.reference = chart::ReferenceSet::AllPatches;  // `crfcal chart`'s default
+  const ChartCalibrationResult result = calibrateChart(shots, options);
+  std::vector<std::vector<double>> curves;
+  for (const auto& c : result.channels) curves.push_back(c.fit.inverse);
+  return curves;
+}
+
+std::vector<SceneShots> loadScenes(const fs::path& root, std::vector<ChartCalibrationResult>& truths,
+                                   std::vector<size_t>& truth_of, Progress& progress) {
+  std::vector<SceneShots> scenes;
+  const std::vector<std::string> cameras = io::listMiddleburyCameras(root);
+  for (size_t i = 0; i < cameras.size(); ++i) {
+    std::map<int, SceneShots> by_scene;
+    std::vector<ChartShot> all;
+    for (const auto& shot : io::listMiddleburyShots(root / cameras[i])) {
+      SceneShots& scene = by_scene[shot.scene];
+      scene.camera = cameras[i];
+      scene.scene = shot.scene;
+      const cv::Mat jpg = io::loadChart(shot.jpg, io::ChartLayout::Rectified).rectified;
+      ChartShot s;
+      s.name = shot.name;
+      s.scene = shot.scene;
+      s.measured = chart::sampleRectified(jpg);
+      s.raw = chart::sampleRectified(io::loadChart(shot.raw, io::ChartLayout::Rectified).rectified);
+      scene.frames.push_back(jpg);
+      scene.shots.push_back(s);
+      all.push_back(s);
+    }
+    // The truth: `crfcal chart JPEG… --raw RAW…` on all the camera's shots (grey patches, one RAW scale).
+    ChartCalibrationOptions truth_options;
+    truth_options.use_raw = true;
+    truth_options.raw_neutral_only = true;
+    truths.push_back(calibrateChart(all, truth_options));
+    for (auto& [id, scene] : by_scene) {
+      scene.exposures = rawExposures(scene.shots);
+      scenes.push_back(std::move(scene));
+      truth_of.push_back(i);
+    }
+    progress.update(double(i + 1) / double(cameras.size()), cameras[i]);
+  }
+  return scenes;
+}
+
+// The table and the targets' verdicts.
+nlohmann::json printTable(const std::vector<Method>& methods, size_t scenes, const fs::path& root) {
+  std::printf("\nStatic references on the Middlebury ColorChecker shots (%s): %zu camera scenes x 4 exposures, JPEG vs "
+              "the camera's RAW->JPEG truth; exposure times for OpenCV (and 'exposures given') from the RAW greys\n",
+              root.string().c_str(), scenes);
+  std::printf("shape RMSE over the covered range (truth's ∩ the shots' patch values) after the best common factor\n");
+  std::printf("| method | R | G | B | RGB mean | R/G | B/G | failed | CPU s median | CPU s max | wall s median |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
+  nlohmann::json json = nlohmann::json::object();
+  std::map<std::string, double> rgb;
+  for (const Method& m : methods) {
+    std::vector<double> all;
+    for (int c = 0; c < 3; ++c) all.insert(all.end(), m.error[c].begin(), m.error[c].end());
+    const double R = mean(m.error[0]), G = mean(m.error[1]), B = mean(m.error[2]);
+    rgb[m.name] = mean(all);
+    const double cpu_max = m.cpu_seconds.empty() ? std::nan("") : *std::max_element(m.cpu_seconds.begin(), m.cpu_seconds.end());
+    std::printf("| %s | %.4f | %.4f | %.4f | %.4f | %.2f | %.2f | %d | %.3f | %.3f | %.3f |\n", m.name.c_str(), R, G, B,
+                mean(all), R / G, B / G, m.failed, median(m.cpu_seconds), cpu_max, median(m.wall_seconds));
+    json[m.name] = {{"R", R}, {"G", G}, {"B", B}, {"rgb_mean", mean(all)}, {"failed", m.failed},
+                    {"cpu_seconds_median", median(m.cpu_seconds)}, {"cpu_seconds_max", cpu_max},
+                    {"wall_seconds_median", median(m.wall_seconds)}};
+  }
+  const double debevec = rgb["OpenCV Debevec"];
+  std::printf("\n");
+  for (const Method& m : methods) {
+    if (m.name.rfind("crfcal", 0) != 0) continue;
+    const double R = mean(m.error[0]), G = mean(m.error[1]), B = mean(m.error[2]);
+    const bool shape = rgb[m.name] <= 0.5 * debevec, balance = R <= 1.5 * G && B <= 1.5 * G;
+    const bool fast = median(m.cpu_seconds) <= 0.4;
+    std::printf("%s: RGB <= 1/2 Debevec's (%.4f vs %.4f, ratio %.2f): %s; R and B within 1.5x of G: %s; "
+                "<= 0.4 s per call (median CPU %.3f s): %s\n",
+                m.name.c_str(), rgb[m.name], debevec, rgb[m.name] / debevec, shape ? "met" : "not met",
+                balance ? "met" : "not met", median(m.cpu_seconds), fast ? "met" : "not met");
+  }
+  return json;
+}
+
+int runReferencesBench(const ReferencesBenchArgs& args) {
+  const fs::path root = io::defaultSharedData(args.data) / "middlebury";
+  const io::OutputPolicy policy{"bench references", {io::defaultSharedData(args.data)}, args.force};
+  if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);
+  if (!fs::is_directory(root)) {
+    std::printf("Middlebury data not found at %s (give --data or set CRFCAL_SHARED_DATA): skipped\n",
+                root.string().c_str());
+    return kExitOk;
+  }
+  Progress progress(args.quiet);
+  progress.stage("load and truth");
+  std::vector<ChartCalibrationResult> truths;
+  std::vector<size_t> truth_of;
+  const std::vector<SceneShots> scenes = loadScenes(root, truths, truth_of, progress);
+  progress.done();
+  std::vector<Method> methods;
+  for (const char* name : {"OpenCV Debevec", "OpenCV Robertson", "crfcal chart", "crfcal chart, exposures given",
+                           "crfcal bracket"}) {
+    methods.emplace_back();
+    methods.back().name = name;
+  }
+  nlohmann::json cases = nlohmann::json::array();
+  progress.stage("calibrate");
+  for (size_t i = 0; i < scenes.size(); ++i) {
+    const SceneShots& scene = scenes[i];
+    const ChartCalibrationResult& truth = truths[truth_of[i]];
+    nlohmann::json row{{"camera", scene.camera}, {"scene", scene.scene}, {"exposures", scene.exposures}};
+    for (const auto calibrator : {OpenCvCalibrator::Debevec, OpenCvCalibrator::Robertson})
+      runMethod(methods[calibrator == OpenCvCalibrator::Debevec ? 0 : 1],
+                [&] { return opencvInverseResponse(scene.frames, scene.exposures, calibrator); }, truth, scene, row);
+    runMethod(methods[2], [&] { return chartCurves(scene, false); }, truth, scene, row);
+    runMethod(methods[3], [&] { return chartCurves(scene, true); }, truth, scene, row);
+    runMethod(methods[4], [&] {
+      std::vector<BracketFrame> frames;
+      for (size_t j = 0; j < scene.frames.size(); ++j)
+        frames.push_back({scene.shots[j].name, scene.frames[j], scene.exposures[j]});
+      const BracketCalibrationResult result = calibrateBracket(frames);
+      std::vector<std::vector<double>> curves;
+      for (const auto& c : result.channels) curves.push_back(c.fit.inverse);
+      return curves;
+    }, truth, scene, row);
+    cases.push_back(row);
+    progress.update(double(i + 1) / double(scenes.size()), scene.camera);
+  }
+  progress.done();
+  const nlohmann::json summary = printTable(methods, scenes.size(), root);
+  if (!args.json.empty()) io::writeJsonOutput(args.json, {{"summary", summary}, {"cases", cases}}, policy.command);
+  return kExitOk;
+}
+
+const BenchRegistration registration(
+    47, "references",
+    "The static references side by side on the Middlebury cameras' 4-exposure chart shots: OpenCV Debevec / "
+    "Robertson, crfcal chart (with and without exposures), crfcal bracket; shape error vs RAW->JPEG truth, time",
+    [](CLI::App& command) {
+      auto args = std::make_shared<ReferencesBenchArgs>();
+      command.add_option("--data", args->data,
+                         "Shared data directory holding middlebury/ (default $CRFCAL_SHARED_DATA or ../shared/data)");
+      command.add_option("--json", args->json, "Write all numbers to this JSON file (atomic)");
+      command.add_flag("--force", args->force, kForceHelp);
+      command.add_flag("-q,--quiet", args->quiet, "No progress output");
+      return [args] { return runReferencesBench(*args); };
+    });
+
+}  // namespace
+}  // namespace crfcal::app
