@@ -479,7 +479,8 @@ struct PairsRun {
                                {"difference_sigmas", e.conflict_sigmas},
                                {"decision", toString(e.decision)},
                                {"brightness_interval_over_true", {e.brightness_low / c.ratio, e.brightness_high / c.ratio}},
-                               {"refitted", r.ratio_from_evidence}};
+                               {"refitted", r.ratio_from_evidence},
+                               {"not_adopted_reason", e.not_adopted_reason}};
     row["ratio_held_small_blur"] = r.ratio_fixed_by_small_blur;
     return s;
   }

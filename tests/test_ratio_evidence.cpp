@@ -16,7 +16,7 @@ namespace {
 
 RatioEvidenceOptions noFloor() {
   RatioEvidenceOptions o;
-  o.images_log_sigma_floor = 0;
+  o.images_exponent_sigma_floor = 0;
   return o;
 }
 
@@ -39,15 +39,20 @@ TEST(RatioEvidence, ScatteredHalfSamplesHandRToTheNominalRatio) {
   EXPECT_LT(e.log_sigma, 0.13);  // a posterior is tighter than either source
 }
 
-TEST(RatioEvidence, FloorIsAddedInQuadrature) {
+TEST(RatioEvidence, FloorIsAnExponentErrorAddedInQuadrature) {
   RatioEvidenceOptions o;
-  o.images_log_sigma_floor = 0.05;
+  o.images_exponent_sigma_floor = 0.072;
   const RatioEvidence e = combineRatioEvidence(4.0, {4.0, 4.0}, 4.4, o);
   EXPECT_DOUBLE_EQ(e.resampled_log_sigma, 0);
-  EXPECT_NEAR(e.images_log_sigma, 0.05, 1e-12);
-  const double w = (1 / 0.0025) / (1 / 0.0025 + 1 / (0.13 * 0.13));
+  const double floor = 0.072 * std::log(4.0);
+  EXPECT_NEAR(e.images_log_sigma, floor, 1e-12);
+  const double w = (1 / (floor * floor)) / (1 / (floor * floor) + 1 / (0.13 * 0.13));
   EXPECT_NEAR(e.images_weight, w, 1e-9);
   EXPECT_NEAR(e.ratio, std::exp(w * std::log(4.0) + (1 - w) * std::log(4.4)), 1e-9);
+  // At r = 1 brightness alone fixes r: a precise images' r is kept whatever the nominal ratio says.
+  const RatioEvidence at_one = combineRatioEvidence(1.0, {1.0004, 0.9996}, 1.04, o);
+  EXPECT_GT(at_one.images_weight, 0.999);
+  EXPECT_NEAR(at_one.ratio, 1.0, 1e-4);
 }
 
 TEST(RatioEvidence, ConflictSidedByBrightnessHoldsTheNominalRatio) {

@@ -76,8 +76,8 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   }
   detail::chooseFitWindow(state);
   detail::fitKernelPhiRounds(state);
-  detail::combineRatioWithNominal(state);
   if (options.effects.enabled) detail::diagnoseResidualEffects(state);
+  detail::combineRatioWithNominal(state);
   detail::computeVerdict(state);
   if (options.band.replicates > 0) detail::estimateBands(state);
   return std::move(state.result);

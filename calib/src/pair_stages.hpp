@@ -7,8 +7,8 @@
 //                                            kernel-aware registration refinement
 //   fit window       pair_stage_fit.cpp      the window handed to the φ fit (Eq. 21–25) and the per-channel fit
 //   kernel↔φ rounds  pair_stage_rounds.cpp   φ_G, the small-blur hold of r, K re-estimated in the irradiance domain
-//   ratio evidence   pair_stage_ratio.cpp    the images' r combined with EXIF / --ratio (ratio_evidence.hpp)
 //   effects          pair_stage_effects.cpp  named effects on the residuals (effects.hpp)
+//   ratio evidence   pair_stage_ratio.cpp    the images' r combined with EXIF / --ratio (ratio_evidence.hpp)
 //   verdict          pair_stage_verdict.cpp  Γ map (Sec. 3), weights, warnings and the data's covered range
 //   band             pair_stage_band.cpp     the pointwise band of φ (curve_band.hpp) over the covered range
 // Internal to calib (not installed). Everything works in the SHARP frame: the smooth blurred shot is resampled,

@@ -13,8 +13,8 @@ void RatioEvidenceOptions::check() const {
     throw InvalidInput("ratio evidence: nominal_log_sigma must be positive");
   if (replicates < 2 || replicates % 2 || replicates > 200)
     throw InvalidInput("ratio evidence: replicates must be even and in 2..200");
-  if (!(images_log_sigma_floor >= 0) || !std::isfinite(images_log_sigma_floor))
-    throw InvalidInput("ratio evidence: images_log_sigma_floor must be >= 0");
+  if (!(images_exponent_sigma_floor >= 0) || !std::isfinite(images_exponent_sigma_floor))
+    throw InvalidInput("ratio evidence: images_exponent_sigma_floor must be >= 0");
   if (!(min_relative_change >= 0)) throw InvalidInput("ratio evidence: min_relative_change must be >= 0");
   if (!(conflict_sigmas > 0)) throw InvalidInput("ratio evidence: conflict_sigmas must be positive");
   if (block_size < 4) throw InvalidInput("ratio evidence: block_size must be >= 4");
@@ -59,9 +59,9 @@ RatioEvidence combineRatioEvidence(double images_ratio, const std::vector<double
   // Half-samples: Var(log r_half − log r_full) ≈ Var(log r_full), so the mean square deviation is the variance.
   e.resampled_log_sigma = std::sqrt(sum_squares / usable);
   e.noise_bias_log = std::isfinite(noise_bias_log) ? noise_bias_log : 0;
-  e.images_log_sigma =
-      std::sqrt(e.resampled_log_sigma * e.resampled_log_sigma + e.noise_bias_log * e.noise_bias_log +
-                options.images_log_sigma_floor * options.images_log_sigma_floor);
+  const double floor = options.images_exponent_sigma_floor * std::abs(std::log(images_ratio));
+  e.images_log_sigma = std::sqrt(e.resampled_log_sigma * e.resampled_log_sigma +
+                                 e.noise_bias_log * e.noise_bias_log + floor * floor);
   const double log_images = std::log(images_ratio), log_nominal = std::log(nominal_ratio);
   if (!(e.images_log_sigma > 0)) {  // a noise-free exact fit: the images fix r
     e.combined = true;
@@ -113,7 +113,9 @@ std::string RatioEvidence::summary() const {
     std::snprintf(buffer, sizeof buffer, "; brightness allows r %.3g-%.3g", brightness_low, brightness_high);
     text += buffer;
   }
-  return text + "; " + toString(decision);
+  text += "; " + std::string(toString(decision));
+  if (!not_adopted_reason.empty()) text += "; not adopted: " + not_adopted_reason;
+  return text;
 }
 
 }  // namespace crfcal

@@ -91,7 +91,8 @@ void addExposureRatio(const PairCalibrationResult& result, const CalibrationRepo
                                         {"conflict", e.conflict},
                                         {"brightness_interval", {e.brightness_low, e.brightness_high}},
                                         {"decision", toString(e.decision)},
-                                        {"refitted", result.ratio_from_evidence}};
+                                        {"refitted", result.ratio_from_evidence},
+                                        {"not_adopted_reason", e.not_adopted_reason}};
   extra["exposure_ratio_per_channel"] = json::object();
   extra["ambiguity_rise"] = json::object();  // CrfFitResult::ambiguity_rise per channel
   for (const auto& [name, fit] : result.fits) {
