@@ -130,6 +130,8 @@ void judgeRatio(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
                     ? ": the shots' brightness sides with " + e.nominal_source + ", so r is held there (the blur did not fix the curve's exponent)"
                     : e.ratio_decision == toString(RatioDecision::images_kept)
                           ? ": the shots' brightness sides with the images, so " + e.nominal_source + " is set aside"
+                    : e.ratio_decision.rfind("not adopted: ", 0) == 0
+                          ? "; the combined r was " + e.ratio_decision + ", so the fits keep their own r"
                           : std::string(": the shots' brightness does not tell which is off; r is their precision-weighted combination")));
   if (e.ratio_held_small_blur)
     j.find(VerdictLevel::weak, "the blur is too small to fix r: held at " + e.nominal_source + format(" %.3g", n) +

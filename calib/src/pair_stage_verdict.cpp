@@ -167,6 +167,7 @@ void judgeChannelsOfPair(PairCalibrationState& state) {
       e.ratio_conflict_sigmas = re.conflict_sigmas;
       e.ratio_held_at_nominal = result.ratio_from_evidence && re.decision == RatioDecision::nominal_held;
       if (re.conflict) e.ratio_decision = toString(re.decision);
+      if (re.conflict && !re.not_adopted_reason.empty()) e.ratio_decision = "not adopted: " + re.not_adopted_reason;
     }
     const double brightness = brightnessRatio(state, name);
     if (brightness > 0) result.brightness_ratio[name] = e.brightness_ratio = brightness;

@@ -91,7 +91,9 @@ struct ChannelEvidence {
   // and what was decided. A conflict makes the channel weak whatever was decided: one source is wrong, and with
   // nominal_held the curve's exponent rests on EXIF, not on the blur.
   bool ratio_conflict = false;
-  std::string ratio_decision;          // toString(RatioDecision) when a conflict was decided; empty otherwise
+  // toString(RatioDecision) when a conflict was decided, or "not adopted: <reason>" when the pipeline kept the fits'
+  // own r (RatioEvidence::not_adopted_reason); empty otherwise
+  std::string ratio_decision;
   bool ratio_held_at_nominal = false;  // r = nominal_ratio by that decision (the EXIF comparison says nothing)
   double ratio_images = 0;             // the images' r (the free fit)
   double ratio_conflict_sigmas = 0;    // their difference in σ
