@@ -15,6 +15,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "bench_statistics.hpp"
 #include "crfcal/bracket_calibration.hpp"
 #include "crfcal/bracket_simulation.hpp"
 #include "crfcal/curve_comparison.hpp"
@@ -77,25 +78,6 @@ double cpuSecondsSince(std::clock_t from) { return double(std::clock() - from) /
 
 double secondsSince(std::chrono::steady_clock::time_point from) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - from).count();
-}
-
-double median(std::vector<double> v) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
-}
-
-double mean(const std::vector<double>& v) {
-  double s = 0;
-  for (double x : v) s += x;
-  return v.empty() ? std::nan("") : s / double(v.size());
-}
-
-// Shape error of `estimate` against the truth over `range`: RMSE after the best common factor.
-double shapeError(const std::vector<double>& truth, const std::vector<double>& estimate, IntensityRange range) {
-  for (double v : estimate)
-    if (!std::isfinite(v)) return std::nan("");
-  return compareCurves(truth, estimate, range, range).rmse_covered_aligned;
 }
 
 // The real tripod brackets of ../shared/data/brackets (no truth): how far OpenCV's calibrators are from crfcal's

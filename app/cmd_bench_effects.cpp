@@ -26,6 +26,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "bench_statistics.hpp"
 #include "option_checks.hpp"
 #include "crfcal/effect_planting.hpp"
 #include "crfcal/effects.hpp"
@@ -274,12 +275,6 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
   }
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return r;
-}
-
-double median(std::vector<double> v) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
 }
 
 double quantile(std::vector<double> v, double q) {

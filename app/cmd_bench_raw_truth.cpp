@@ -18,6 +18,7 @@
 #include <nlohmann/json.hpp>
 
 #include "bench_command.hpp"
+#include "bench_statistics.hpp"
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/raw_truth.hpp"
@@ -43,12 +44,6 @@ struct RawTruthBenchArgs {
   bool quiet = false;
   bool force = false;  // --json/-o over files crfcal did not write (never deletes them)
 };
-
-double median(std::vector<double> v) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
-}
 
 nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root, Progress& progress) {
   const fs::path curves = args.curves.empty() ? io::samplesDirectory() / "camera_curves" : fs::path(args.curves);

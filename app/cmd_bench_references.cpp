@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 
 #include "bench_command.hpp"
+#include "bench_statistics.hpp"
 #include "crfcal/bracket_calibration.hpp"
 #include "crfcal/chart_calibration.hpp"
 #include "crfcal/colorchecker.hpp"
@@ -82,18 +83,6 @@ struct Method {
   int failed = 0;
 };
 
-double median(std::vector<double> v) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
-}
-
-double mean(const std::vector<double>& v) {
-  double s = 0;
-  for (double x : v) s += x;
-  return v.empty() ? std::nan("") : s / double(v.size());
-}
-
 // The range every method is scored on, per channel: the truth's covered range ∩ the range of the usable patch values
 // of the 4 JPEG shots (what any method could have seen).
 IntensityRange scoredRange(const SceneShots& scene, int c, IntensityRange truth_covered) {
@@ -102,12 +91,6 @@ IntensityRange scoredRange(const SceneShots& scene, int c, IntensityRange truth_
     for (const auto& p : shot.measured)
       if (p.usable()) lo = std::min(lo, p.median[static_cast<size_t>(c)]), hi = std::max(hi, p.median[static_cast<size_t>(c)]);
   return {std::max(lo, truth_covered.first), std::min(hi, truth_covered.second)};
-}
-
-double shapeError(const std::vector<double>& truth, const std::vector<double>& estimate, IntensityRange range) {
-  for (double v : estimate)
-    if (!std::isfinite(v)) return std::nan("");
-  return compareCurves(truth, estimate, range, range).rmse_covered_aligned;
 }
 
 // Runs one method on one scene (timed) and records its three channels' shape errors.
