@@ -6,7 +6,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <numeric>
+#include <optional>
 #include <random>
 
 #include "crfcal/error.hpp"
@@ -254,17 +256,33 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
   const std::vector<cv::Mat> masks = replicates > 0 && !used_mask.empty()
                                          ? halfSampleMasks(used_mask, block, replicates, seed)
                                          : std::vector<cv::Mat>{};
-  for (const cv::Mat& mask : masks) {
-    CrfFitOptions o = fit_options;
-    o.pixel_selection = mask;
-    o.progress = nullptr;
-    try {
-      const CrfFitResult fit = fitInverseCrf(sharp, blurred, kernel, o);
-      refits.curves.push_back(fit.inverse_crf);
-      refits.ratios.push_back(fit.ratio);
-    } catch (const InvalidInput&) {
-      ++refits.failed;  // a half without enough edge pixels: the estimate rests on the others
+  // The refits are independent: one per core (each fit's own parallel loops then run serially; its stripes, and so
+  // its sums, do not depend on that, so the band is the same as from a serial loop).
+  const int n = static_cast<int>(masks.size());
+  std::vector<std::optional<CrfFitResult>> fits(n);
+  std::vector<std::exception_ptr> errors(n);
+  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      CrfFitOptions o = fit_options;
+      o.pixel_selection = masks[i];
+      o.progress = nullptr;
+      try {
+        fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
+      } catch (const InvalidInput&) {
+        // a half without enough edge pixels: the estimate rests on the others
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
     }
+  });
+  for (int i = 0; i < n; ++i) {
+    if (errors[i]) std::rethrow_exception(errors[i]);
+    if (!fits[i]) {
+      ++refits.failed;
+      continue;
+    }
+    refits.curves.push_back(fits[i]->inverse_crf);
+    refits.ratios.push_back(fits[i]->ratio);
   }
   return refits;
 }

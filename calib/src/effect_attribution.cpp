@@ -5,7 +5,11 @@
 // held-out drop from the runner-up's model to its own, with the same score test as every effect's own test
 // (scoreTest: z = Σ d / (2 σ sqrt(A Σ δ²)), d the per-sample drop, δ the change of prediction).
 #include <algorithm>
+#include <exception>
 #include <limits>
+#include <optional>
+
+#include <opencv2/core.hpp>
 
 #include "effect_problem.hpp"
 
@@ -13,17 +17,34 @@ namespace crfcal::effect {
 
 std::vector<Candidate> levelCandidates(const EffectSearch& search, const Problem& problem, const Spec& base,
                                        const Evaluation& base_eval) {
-  std::vector<Candidate> out;
-  for (const LevelEffect* effect : levelEffects()) {
-    if (effect->not_applicable(search) || effect->in(base)) continue;
-    const Spec extended = effect->extend(base);
-    Candidate c{effect->name, problem.evaluate(extended, true, &base_eval), {}, false, false};
-    c.cmp = effect->test(search, base_eval, c.eval);
-    c.plausible = physical(extended, c.eval, search.nc, search.terms);
-    c.passes = c.plausible && c.cmp.gain >= search.options.min_gain && c.cmp.z >= search.options.min_z;
-    out.push_back(std::move(c));
+  std::vector<const LevelEffect*> effects;
+  for (const LevelEffect* effect : levelEffects())
+    if (!effect->not_applicable(search) && !effect->in(base)) effects.push_back(effect);
+  // Independent fits of the same problem: one candidate per core, kept in levelEffects() order.
+  const int n = static_cast<int>(effects.size());
+  std::vector<std::optional<Candidate>> out(n);
+  std::vector<std::exception_ptr> errors(n);
+  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      try {
+        const LevelEffect& effect = *effects[i];
+        const Spec extended = effect.extend(base);
+        Candidate c{effect.name, problem.evaluate(extended, true, &base_eval), {}, false, false};
+        c.cmp = effect.test(search, base_eval, c.eval);
+        c.plausible = physical(extended, c.eval, search.nc, search.terms);
+        c.passes = c.plausible && c.cmp.gain >= search.options.min_gain && c.cmp.z >= search.options.min_z;
+        out[i] = std::move(c);
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+    }
+  });
+  std::vector<Candidate> candidates;
+  for (int i = 0; i < n; ++i) {
+    if (errors[i]) std::rethrow_exception(errors[i]);
+    candidates.push_back(std::move(*out[i]));
   }
-  return out;
+  return candidates;
 }
 
 Comparison headToHead(const EffectSearch& search, const Evaluation& runner_up, const Evaluation& winner) {

@@ -267,11 +267,23 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
     return sum;
   };
   double mu = 1e-3, current = cost(theta);
+  // The Jacobian's rows are gathered in blocks and JᵀJ, Jᵀr formed per block (one rank-k update instead of a rank-1
+  // update per sample: the search's fits spend most of their time here).
+  constexpr int kBlockRows = 256;
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> Jb(kBlockRows, cols);
+  Eigen::VectorXd rb(kBlockRows);
   for (int iteration = 0; iteration < 40; ++iteration) {
     Eigen::MatrixXd JtJ = Eigen::MatrixXd::Zero(cols, cols);
     Eigen::VectorXd Jtr = Eigen::VectorXd::Zero(cols);
-    Eigen::VectorXd J(cols);
     const Eigen::Index first = cols - terms;
+    int filled = 0;
+    const auto flush = [&] {
+      if (filled == 0) return;
+      const auto J = Jb.topRows(filled);
+      JtJ.selfadjointView<Eigen::Lower>().rankUpdate(J.transpose());
+      Jtr.noalias() += J.transpose() * rb.head(filled);
+      filled = 0;
+    };
     for (auto i : use) {
       row(s, i, spec, buffer, t);
       double pr = 0;
@@ -280,12 +292,14 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
       for (int k = 0; k < terms; ++k) d += theta(first + k) * s.Dh[k][i];
       const bool floored = d < min_derivative_;
       const double w = 1.0 / std::max(d, min_derivative_), r = w * (t - pr);
-      for (int a = 0; a < cols; ++a) J(a) = -w * buffer[a];
+      double* J = Jb.row(filled).data();
+      for (int a = 0; a < cols; ++a) J[a] = -w * buffer[a];
       if (!floored)
-        for (int k = 0; k < terms; ++k) J(first + k) -= r * w * s.Dh[k][i];
-      JtJ.selfadjointView<Eigen::Lower>().rankUpdate(J);
-      Jtr += J * r;
+        for (int k = 0; k < terms; ++k) J[first + k] -= r * w * s.Dh[k][i];
+      rb(filled) = r;
+      if (++filled == kBlockRows) flush();
     }
+    flush();
     JtJ = JtJ.selfadjointView<Eigen::Lower>();
     bool improved = false;
     for (int attempt = 0; attempt < 6 && !improved; ++attempt) {
@@ -391,6 +405,8 @@ double Problem::residual(const Samples& s, std::size_t i, const Spec& spec, cons
   const double predicted = u - (t - p);  // the model's irradiance before the clip
   return w * (u - std::min(predicted, c));
 }
+
+thread_local const std::vector<std::vector<double>>* Problem::coupled_ = nullptr;
 
 // With mixing, the channels' fits are coupled: the other channels' X_d follow their own φ re-fits
 // (X_d + Σ α_dk K⊗h_k(I_d)), alternated three times.

@@ -204,7 +204,9 @@ class Problem {
 
   std::vector<Samples> s_;
   int blocks_ = 0, fine_blocks_ = 0;
-  mutable const std::vector<std::vector<double>>* coupled_ = nullptr;  // mixing: the other channels' re-fitted X
+  // mixing: the other channels' re-fitted X while fitAll / heldoutResiduals run. Per thread, not per Problem: the
+  // candidates of one search step are evaluated in parallel on the same Problem (levelCandidates).
+  static thread_local const std::vector<std::vector<double>>* coupled_;
   double min_derivative_ = 0.05;
 };
 

@@ -6,6 +6,7 @@
 // by one pixel) from Y = φ(B) and the debiased φ(I), residuals weighted 1/φ'(B) like every other test. Tested
 // around the selected model's φ, only when the pipeline estimated the kernel.
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include "crfcal/kernel.hpp"
@@ -25,29 +26,40 @@ cv::Mat kernelAt(const BlurTest& bt, double u, double v) {
 namespace {
 
 // The least-squares problem of the kernel entries: rows are weighted samples, columns [K₀ | u K₀ | v K₀] entries.
+// Every solve goes through the normal equations of one fold (or both): the per-fold Gram matrices DᵀD and Dᵀt are
+// accumulated once (normalEquations), and the base fit (the first m columns) reads their leading block, so the
+// 3m × 3m products, the test's whole cost, are formed once per fold instead of once per solve.
 struct KernelDesign {
   std::vector<cv::Point> support;   // kernel entries fitted
   std::vector<std::size_t> idx;     // the samples used
   Eigen::MatrixXd D;
   Eigen::VectorXd t;
   std::vector<int> fold;
+  std::array<Eigen::MatrixXd, 2> gram;  // per fold: DᵀD (lower triangle filled, symmetric)
+  std::array<Eigen::VectorXd, 2> rhs;   // per fold: Dᵀt
   int m() const { return static_cast<int>(support.size()); }
   int n() const { return static_cast<int>(idx.size()); }
 
+  void normalEquations() {
+    for (int f = 0; f < 2; ++f) {
+      std::vector<Eigen::Index> rows;
+      for (int r = 0; r < n(); ++r)
+        if (fold[r] == f) rows.push_back(r);
+      const Eigen::MatrixXd Df = D(rows, Eigen::all);
+      gram[f] = Eigen::MatrixXd::Zero(D.cols(), D.cols());
+      gram[f].selfadjointView<Eigen::Lower>().rankUpdate(Df.transpose());
+      gram[f] = gram[f].selfadjointView<Eigen::Lower>();
+      rhs[f] = Df.transpose() * t(rows);
+    }
+  }
+
   // Least squares on one fold (−1: all rows) with the first `cols` columns.
   Eigen::VectorXd solve(int f, int cols) const {
-    std::vector<int> rows;
-    for (int r = 0; r < n(); ++r)
-      if (f < 0 || fold[r] == f) rows.push_back(r);
-    Eigen::MatrixXd Df(rows.size(), cols);
-    Eigen::VectorXd tf(rows.size());
-    for (std::size_t k = 0; k < rows.size(); ++k) {
-      Df.row(static_cast<Eigen::Index>(k)) = D.row(rows[k]).head(cols);
-      tf(static_cast<Eigen::Index>(k)) = t(rows[k]);
-    }
-    Eigen::MatrixXd A = Df.transpose() * Df;
+    Eigen::MatrixXd A = f < 0 ? Eigen::MatrixXd(gram[0].topLeftCorner(cols, cols) + gram[1].topLeftCorner(cols, cols))
+                              : Eigen::MatrixXd(gram[f].topLeftCorner(cols, cols));
+    const Eigen::VectorXd b = f < 0 ? Eigen::VectorXd(rhs[0].head(cols) + rhs[1].head(cols)) : rhs[f].head(cols);
     A.diagonal().array() += 1e-9 * A.diagonal().mean() + 1e-300;
-    return Eigen::VectorXd(A.ldlt().solve(Df.transpose() * tf));
+    return Eigen::VectorXd(A.ldlt().solve(b));
   }
 };
 
@@ -108,6 +120,7 @@ BlurTest spatialBlurTest(const Samples& s, const cv::Mat& g, const cv::Mat& K, c
   bt.problem = selectDesign(s, g, K, max_samples, kd);
   if (!bt.problem.empty()) return bt;
   fillDesign(s, g, K, centre, radius, min_derivative, kd);
+  kd.normalEquations();
   const int m = kd.m(), n = kd.n();
   std::array<Eigen::VectorXd, 2> base, ext;
   for (int f = 0; f < 2; ++f) {

@@ -1,12 +1,16 @@
 // Stage "fit window" of calibratePair: the window of the frame handed to the φ fit (crf_fitter.hpp, Eq. 21–25),
 // both shots cut to it per channel, and the fit of one channel on it.
 #include <algorithm>
+#include <exception>
+#include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include <opencv2/core.hpp>
 
 #include "crfcal/chroma_subsampling.hpp"
+#include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
 #include "pair_stages.hpp"
 
@@ -66,6 +70,48 @@ CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& na
     fo.sharp_error_bound = it->second;
   fo.progress = [&state, &name](double f, const std::string& stage) { state.report("fit " + name, f, stage); };
   return fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
+}
+
+std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, const std::vector<std::string>& names,
+                                                const cv::Mat& kernel, bool fallback_warnings) {
+  const int n = static_cast<int>(names.size());
+  std::vector<std::optional<CrfFitResult>> fits(n);
+  std::vector<std::exception_ptr> errors(n);
+  state.report("fit", 0, n == 1 ? names[0] : std::to_string(n) + " channels");
+  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      try {
+        CrfFitOptions fo = state.fit_options;
+        if (const auto it = state.window_sharp_error.find(names[i]); it != state.window_sharp_error.end())
+          fo.sharp_error_bound = it->second;
+        fo.progress = nullptr;  // progress from the workers would interleave: the stage reports per batch
+        fits[i] = fitInverseCrf(state.window_sharp.at(names[i]), state.window_blurred.at(names[i]),
+                                cropKernel(kernel, 0.0), fo);
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+    }
+  });
+  std::map<std::string, CrfFitResult> out;
+  for (int i = 0; i < n; ++i) {
+    const std::string& name = names[i];
+    if (errors[i]) {
+      try {
+        std::rethrow_exception(errors[i]);
+      } catch (const InvalidInput& e) {
+        // The chroma model (a subsampled sharp JPEG) leaves too few pixels: today's pointwise model.
+        if (!state.window_sharp_error.count(name)) throw;
+        state.window_sharp_error.erase(name);
+        if (fallback_warnings)
+          state.result.warnings.push_back(name + ": too few pixels where the sharp shot's subsampled chroma is flat (" +
+                                          e.reason() + "); fitted with the pointwise model, less reliable than G");
+        fits[i] = fitChannel(state, name, kernel);
+      }
+    }
+    out[name] = std::move(*fits[i]);
+  }
+  state.report("fit", 1);
+  return out;
 }
 
 }  // namespace crfcal::detail

@@ -96,16 +96,8 @@ void combineRatioWithNominal(PairCalibrationState& state) {
     state.fit_options.fit_ratio = false;
     state.fit_options.nominal_ratio = evidence.ratio;
     result.ratio_from_evidence = true;
-    for (const auto& name : result.channels) {
-      try {
-        result.fits[name] = fitChannel(state, name, state.kernel);
-      } catch (const InvalidInput& e) {
-        // Same fallback as the rounds: the chroma model (a subsampled sharp JPEG) leaving too few pixels.
-        if (!state.window_sharp_error.count(name)) throw;
-        state.window_sharp_error.erase(name);
-        result.fits[name] = fitChannel(state, name, state.kernel);
-      }
-    }
+    // Same fallback as the rounds for the chroma model (a subsampled sharp JPEG) leaving too few pixels.
+    for (auto& [name, fit] : fitChannels(state, result.channels, state.kernel, false)) result.fits[name] = std::move(fit);
   }
   if (evidence.conflict) result.warnings.push_back(conflictWarning(evidence, options.nominal_ratio_name));
   evidence.seconds = secondsSince(start);

@@ -90,22 +90,18 @@ void fitKernelPhiRounds(PairCalibrationState& state) {
   result.rounds.push_back({0, 0, 0, result.fits["G"].ratio, result.kernel.relative_residual});
   for (int round = 1; round <= options.rounds && options.given_kernel.empty(); ++round)
     if (!kernelPhiRound(state, round, fit_time)) break;
-  for (const auto& name : result.channels) {
-    if (name == "G") continue;
-    const auto channel_start = Clock::now();
-    try {
-      result.fits[name] = fitChannel(state, name, state.kernel);
+  const auto others_start = Clock::now();
+  std::vector<std::string> others;
+  for (const auto& name : result.channels)
+    if (name != "G") others.push_back(name);
+  if (!others.empty()) {
+    auto fits = fitChannels(state, others, state.kernel, true);
+    for (const auto& name : others) {
       if (state.window_sharp_error.count(name)) result.chroma_model_channels.push_back(name);
-    } catch (const InvalidInput& e) {
-      // The chroma model (a subsampled sharp JPEG) leaves too few pixels: today's pointwise model, with a warning.
-      if (!state.window_sharp_error.count(name)) throw;
-      state.window_sharp_error.erase(name);
-      result.warnings.push_back(name + ": too few pixels where the sharp shot's subsampled chroma is flat (" +
-                                e.reason() + "); fitted with the pointwise model, less reliable than G");
-      result.fits[name] = fitChannel(state, name, state.kernel);
+      result.fits[name] = std::move(fits.at(name));
     }
-    fit_time += secondsSince(channel_start);
   }
+  fit_time += secondsSince(others_start);
   result.timings["fit"] = fit_time;
   result.timings["kernel_phi_rounds"] = secondsSince(start) - fit_time;
 }
