@@ -292,7 +292,12 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
                             std::pair<double, double> covered, const CurveBandOptions& options) {
   options.check();
   const auto start = std::chrono::steady_clock::now();
-  const HalfSampleRefits refits = refitOnHalfSamples(sharp, blurred, kernel, fit_options, fit.pixels.used_mask,
+  CrfFitOptions refit_options = fit_options;
+  if (options.refit_chosen_model && fit_options.model == CrfModelChoice::automatic) {
+    if (fit.chosen == "ggcm") refit_options.model = CrfModelChoice::ggcm;
+    else if (fit.chosen == "emor") refit_options.model = CrfModelChoice::emor;
+  }
+  const HalfSampleRefits refits = refitOnHalfSamples(sharp, blurred, kernel, refit_options, fit.pixels.used_mask,
                                                      options.replicates, options.block_size, options.seed);
   const std::vector<std::vector<double>>& curves = refits.curves;
   const int failed = refits.failed;

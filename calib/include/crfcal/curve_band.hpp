@@ -51,6 +51,10 @@ struct CurveBandOptions {
   // Add the fitter's other candidate model (GGCM vs EMoR, crf_model_selection), scale-aligned, as a model term of
   // the shape half-width: √((t σ)² + (a φ_other − φ)²). The sampling spread misses the model's systematic misfit.
   bool include_model_spread = true;
+  // The refits fit only the model the full fit chose (GGCM or EMoR; no cross-validated choice between them): the
+  // choice is the model term above, and a refit that chose per half would count it twice. It also spares each
+  // refit the other model and the two-fold choice (3–6 model fits of the full fitter's).
+  bool refit_chosen_model = true;
   std::uint64_t seed = 1;  // the blocks' half-samples (deterministic)
   void check() const;      // throws InvalidInput
 };
