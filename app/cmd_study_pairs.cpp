@@ -51,8 +51,8 @@ constexpr double kRatioFactor = 1.5;
 // threshold is measured per pair (the width's sensitivity to σ depends on the scene's edges: on g_truth_1 σ 0.5 / 0.8
 // / 1.2 px widen the 1.67 px median edge by 17 / 60 / 113 %).
 constexpr double kSmoothingSigma = 0.7;
-// Halo: the sharp shot's mean edge lobes above the blurred shot's (the blur removes lobes) by 5 % of the step —
-// a sign change that no non-negative kernel produces, large enough to move the moments of Eq. 22 at edges.
+// Halo: the lobes of the sharp shot's median edge profile above the blurred shot's (the blur removes lobes) by 5 %
+// of the step — a sign change that no non-negative kernel produces, large enough to move the moments of Eq. 22.
 constexpr double kHaloExcess = 0.05;
 
 struct Shot {
