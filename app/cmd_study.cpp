@@ -1,4 +1,4 @@
-// crfcal study channels|noise|ratio: what the seed's simulation gets wrong on measured data (issue 6).
+// crfcal study channels|noise|ratio|pairs: what the seed's simulation gets wrong on measured data (issue 6).
 // Each study prints one table — simulation assumption → measured misfit → named cause → extended model → measured
 // gain (held-out) — plus a detail table, and writes table.csv, details.csv, table.json and PNG plot(s) atomically.
 #include <memory>
@@ -13,6 +13,7 @@ using study::StudyArgs;
 using study::runChannels;
 using study::runNoise;
 using study::runRatio;
+using study::runPairs;
 
 void addCommon(CLI::App* sub, StudyArgs& args) {
   sub->add_option("--data", args.data, "Shared data directory (default $CRFCAL_SHARED_DATA or ../shared/data)");
@@ -22,7 +23,7 @@ void addCommon(CLI::App* sub, StudyArgs& args) {
 }
 
 const CommandRegistration registration(
-    70, "study", "Studies on measured data: what the seed's simulation gets wrong (channels | noise | ratio)",
+    70, "study", "Studies on measured data: what the seed's simulation gets wrong (channels | noise | ratio | pairs)",
     [](CLI::App& command) {
       auto args = std::make_shared<StudyArgs>();
       auto which = std::make_shared<std::string>();
@@ -42,9 +43,14 @@ const CommandRegistration registration(
       addCommon(ratio, *args);
       ratio->add_option("--images", args->images, "Levin images in the wrong-r sweep")->check(CLI::Range(1, 4));
       ratio->callback([which] { *which = "ratio"; });
+      CLI::App* pairs = command.add_subcommand(
+          "pairs", "Real phone pairs (vivo X6S): each candidate cause of the misfit measured, supported or ruled out");
+      addCommon(pairs, *args);
+      pairs->callback([which] { *which = "pairs"; });
       return [args, which] {
         if (*which == "channels") return runChannels(*args);
         if (*which == "noise") return runNoise(*args);
+        if (*which == "pairs") return runPairs(*args);
         return runRatio(*args);
       };
     });

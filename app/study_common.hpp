@@ -1,6 +1,6 @@
 #pragma once
-// What the three `crfcal study` subcommands share (cmd_study.cpp registers them; cmd_study_channels.cpp,
-// cmd_study_noise.cpp, cmd_study_ratio.cpp run them): the arguments, the summary table assumption → misfit → cause →
+// What the `crfcal study` subcommands share (cmd_study.cpp registers them; cmd_study_channels.cpp,
+// cmd_study_noise.cpp, cmd_study_ratio.cpp, cmd_study_pairs.cpp run them): the arguments, the summary table assumption → misfit → cause →
 // extended model → gain, and its writer.
 #include <filesystem>
 #include <string>
@@ -49,5 +49,6 @@ double meanOf(const std::vector<double>& v);
 int runChannels(const StudyArgs& args);
 int runNoise(const StudyArgs& args);
 int runRatio(const StudyArgs& args);
+int runPairs(const StudyArgs& args);
 
 }  // namespace crfcal::app::study
