@@ -3,7 +3,9 @@
 // high-contrast edges (Eq. 18). Both domains are written so that the difference can be seen.
 #include <cstdio>
 #include <filesystem>
+#include <cmath>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -18,6 +20,8 @@
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/report.hpp"
 #include "crfcal/io/response_io.hpp"
+#include "crfcal/registration.hpp"
+#include "crfcal/residual_deconvolution.hpp"
 #include "crfcal/response_curve.hpp"
 
 namespace crfcal::app {
@@ -34,6 +38,10 @@ struct DeblurArgs {
   double lambda = DeconvolutionOptions{}.lambda;
   double wiener_nsr = DeconvolutionOptions{}.wiener_nsr;
   double saturation = DeconvolutionOptions{}.saturation;
+  std::string sharp;  // the pair's sharp shot: residual deconvolution (Yuan et al. 2007)
+  double denoise_strength = ResidualDeconvolutionOptions{}.denoise_strength;
+  double ratio = 0;   // r of the residual model (0: fitted)
+  bool registered = false;  // --sharp: the shots are registered (identity), no registration
   std::string output;
   bool force = false;  // write into an output directory holding other files (never deletes them)
 };
@@ -85,13 +93,37 @@ cv::Mat toUnit(const cv::Mat& image) {
   return unit;
 }
 
-// blurred | intensity-domain | irradiance-domain, 8-bit, a caption above each panel.
-cv::Mat sideBySide(const cv::Mat& blurred, const cv::Mat& intensity, const cv::Mat& irradiance) {
+// The sharp shot → blurred shot homography of a calibration report ("registration": {"homography": 9 values}); empty
+// when the report has none.
+cv::Mat homographyOfReport(const fs::path& report_path) {
+  const io::CalibrationReport report = io::readReport(report_path);
+  const auto entry = report.extra.find("registration");
+  if (entry == report.extra.end() || !entry->is_object() || !entry->contains("homography")) return {};
+  const std::vector<double> values = entry->at("homography").get<std::vector<double>>();
+  if (values.size() != 9) throw Error("registration.homography must have 9 values", report_path.string());
+  return cv::Mat(values, true).reshape(1, 3);
+}
+
+// The pair's sharp shot in unit range, checked against the blurred image (same size and channels).
+cv::Mat readSharpShot(const std::string& path, const cv::Mat& blurred, const std::string& blurred_path) {
+  cv::Mat sharp = io::readImage(path);
+  if (sharp.channels() == 4) cv::cvtColor(sharp, sharp, cv::COLOR_BGRA2BGR);
+  if (sharp.size() != blurred.size() && sharp.size() != cv::Size(blurred.rows, blurred.cols))
+    throw Error("the sharp shot is " + std::to_string(sharp.cols) + "x" + std::to_string(sharp.rows) + " but " +
+                    blurred_path + " is " + std::to_string(blurred.cols) + "x" + std::to_string(blurred.rows) +
+                    " (the pair's two shots have one size, or are portrait and landscape)", path);
+  if (sharp.channels() != blurred.channels())
+    throw Error("the sharp shot has " + std::to_string(sharp.channels()) + " channel(s), " + blurred_path + " " +
+                    std::to_string(blurred.channels()), path);
+  return sharp;
+}
+
+// Panels side by side, 8-bit, a caption above each.
+cv::Mat sideBySide(const std::vector<std::pair<cv::Mat, std::string>>& items) {
   const int caption = 28;
   std::vector<cv::Mat> panels;
-  const std::pair<const cv::Mat*, const char*> items[] = {
-      {&blurred, "blurred"}, {&intensity, "intensity domain"}, {&irradiance, "irradiance domain"}};
-  for (const auto& [image, label] : items) {
+  for (const auto& [image_value, label] : items) {
+    const cv::Mat* image = &image_value;
     cv::Mat bgr, eight;
     cv::Mat clamped = cv::min(cv::max(*image, 0.0), 1.0);
     clamped.convertTo(eight, CV_MAKETYPE(CV_8U, clamped.channels()), 255.0);
@@ -99,7 +131,7 @@ cv::Mat sideBySide(const cv::Mat& blurred, const cv::Mat& intensity, const cv::M
     else bgr = eight;
     cv::Mat panel(bgr.rows + caption, bgr.cols, CV_8UC3, cv::Scalar(255, 255, 255));
     bgr.copyTo(panel(cv::Rect(0, caption, bgr.cols, bgr.rows)));
-    cv::putText(panel, label, {6, caption - 8}, cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    cv::putText(panel, label.c_str(), {6, caption - 8}, cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
     panels.push_back(panel);
     panels.push_back(cv::Mat(panel.rows, 4, CV_8UC3, cv::Scalar(255, 255, 255)));
   }
@@ -107,6 +139,90 @@ cv::Mat sideBySide(const cv::Mat& blurred, const cv::Mat& intensity, const cv::M
   cv::Mat joined;
   cv::hconcat(panels, joined);
   return joined;
+}
+
+// Registers the sharp shot onto the blurred one; a transposed sharp shot is turned by whichever of ±90° registers
+// with a small angle (a handheld pair), into `turned`.
+RegistrationResult registerTurning(const cv::Mat& sharp, const cv::Mat& blurred, cv::Mat& turned) {
+  if (sharp.size() == blurred.size()) {
+    turned = sharp;
+    return registerPair(sharp, blurred);
+  }
+  std::optional<RegistrationResult> best;
+  std::string failure = "neither 90-degree turn of the sharp shot registers";
+  for (const int code : {cv::ROTATE_90_CLOCKWISE, cv::ROTATE_90_COUNTERCLOCKWISE}) {
+    cv::Mat candidate;
+    cv::rotate(sharp, candidate, code);
+    try {
+      const RegistrationResult r = registerPair(candidate, blurred);
+      if (std::abs(r.rotationDegrees()) > 45) continue;
+      if (!best || r.ecc_correlation * r.overlap_fraction > best->ecc_correlation * best->overlap_fraction) {
+        best = r;
+        turned = candidate;
+      }
+    } catch (const InvalidInput& e) {
+      failure = e.reason();
+    }
+  }
+  if (!best) throw InvalidInput(failure, ErrorSubject::pair);
+  return *best;
+}
+
+// --sharp: residual deconvolution with the pair's sharp shot (irradiance) is deblurred.png; the blind results of
+// both domains are kept beside it.
+int writeWithSharp(const DeblurArgs& args, io::OutputDirectory& out, const cv::Mat& blurred, const cv::Mat& sharp,
+                   const cv::Mat& kernel, const std::vector<ResponseCurve>& curves, const DeconvolutionResult& chosen,
+                   const DeconvolutionResult& other) {
+  ResidualDeconvolutionOptions options;
+  options.deconvolution = chosen.options;
+  options.deconvolution.domain = DeconvolutionDomain::Irradiance;
+  options.denoise_strength = args.denoise_strength;
+  options.ratio = args.ratio;
+  // The report's registration is of the sharp shot as given; a transposed sharp shot (portrait vs landscape) is
+  // turned by ±90° here, as calibrate does, and registered again.
+  cv::Mat turned = sharp;
+  cv::Mat homography = args.from.empty() || sharp.size() != blurred.size() ? cv::Mat() : homographyOfReport(args.from);
+  std::string registration = "from " + args.from;
+  if (args.registered) {
+    if (sharp.size() != blurred.size())
+      throw Error("--registered needs the sharp shot in the blurred image's orientation", args.sharp);
+    homography = cv::Mat::eye(3, 3, CV_64F);
+    registration = "none (--registered)";
+  } else if (homography.empty()) {
+    try {
+      const RegistrationResult registered = registerTurning(sharp, blurred, turned);
+      homography = registered.homography;
+      registration = registered.summary();
+    } catch (const InvalidInput& e) {
+      throw Error(e.reason() + " (give --from REPORT.json or --registered)", args.sharp + ", " + args.blurred);
+    }
+  }
+  ResidualDeconvolutionResult residual;
+  try {
+    residual = deconvolveResidual(blurred, turned, homography, kernel, curves, options);
+  } catch (const InvalidInput& e) {
+    if (e.subject() == ErrorSubject::sharp_image) throw Error(e.reason(), args.sharp);
+    if (e.subject() == ErrorSubject::pair) throw Error(e.reason(), args.sharp + ", " + args.blurred);
+    throw;
+  }
+  const bool irradiance_chosen = chosen.options.domain == DeconvolutionDomain::Irradiance;
+  const DeconvolutionResult& blind = irradiance_chosen ? chosen : other;
+  const DeconvolutionResult& intensity = irradiance_chosen ? other : chosen;
+  io::writeUnitImage(out.file("deblurred.png"), residual.deblurred, 16);
+  io::writeUnitImage(out.file("deblurred_blind.png"), blind.deblurred, 16);
+  io::writeUnitImage(out.file("deblurred_other_domain.png"), intensity.deblurred, 16);
+  io::writeUnitImage(out.file("sharp_denoised.png"), residual.sharp_denoised, 16);
+  io::writeImage(out.file("side_by_side.png"),
+                 sideBySide({{blurred, "blurred"}, {residual.sharp_denoised, "sharp shot, denoised"},
+                             {intensity.deblurred, "intensity domain"}, {blind.deblurred, "irradiance domain"},
+                             {residual.deblurred, "with the sharp shot"}}));
+  const std::string text = residual.summary() + "\nregistration: " + registration + "\nblind, irradiance: " +
+                           blind.summary() + "\nblind, intensity: " + intensity.summary() + "\n";
+  io::writeTextFile(out.file("summary.txt"), text);
+  out.commit();
+  std::printf("%swrote %s/{deblurred,deblurred_blind,deblurred_other_domain,sharp_denoised,side_by_side}.png\n",
+              text.c_str(), out.finalPath().string().c_str());
+  return kExitOk;
 }
 
 int runDeblur(const DeblurArgs& args) {
@@ -122,6 +238,7 @@ int runDeblur(const DeblurArgs& args) {
 
   // Decided before the computation: a refused or unwritable output directory fails at once.
   std::vector<std::filesystem::path> inputs{args.blurred};
+  if (!args.sharp.empty()) inputs.push_back(args.sharp);
   for (const auto* spec : {&args.kernel, &args.crf}) if (!spec->empty()) inputs.push_back(io::specInput(*spec));
   if (!args.from.empty()) {
     inputs.push_back(args.from);
@@ -132,6 +249,7 @@ int runDeblur(const DeblurArgs& args) {
   const cv::Mat blurred = toUnit(io::readImage(args.blurred));
   const cv::Mat kernel = !args.kernel.empty() ? io::kernelFromSpec(args.kernel) : kernelOfReport(args.from);
   const std::vector<ResponseCurve> curves = curvesFor(args.crf.empty() ? args.from : args.crf, blurred.channels());
+  const cv::Mat sharp = args.sharp.empty() ? cv::Mat() : readSharpShot(args.sharp, blurred, args.blurred);
 
   const DeconvolutionResult chosen = deconvolve(blurred, kernel, curves, options);
   DeconvolutionOptions other_options = options;
@@ -142,9 +260,12 @@ int runDeblur(const DeblurArgs& args) {
   const cv::Mat& intensity_result = irradiance_chosen ? other.deblurred : chosen.deblurred;
   const cv::Mat& irradiance_result = irradiance_chosen ? chosen.deblurred : other.deblurred;
 
+  if (!args.sharp.empty()) return writeWithSharp(args, out, blurred, sharp, kernel, curves, chosen, other);
   io::writeUnitImage(out.file("deblurred.png"), chosen.deblurred, 16);
   io::writeUnitImage(out.file("deblurred_other_domain.png"), other.deblurred, 16);
-  io::writeImage(out.file("side_by_side.png"), sideBySide(blurred, intensity_result, irradiance_result));
+  io::writeImage(out.file("side_by_side.png"),
+                 sideBySide({{blurred, "blurred"}, {intensity_result, "intensity domain"},
+                             {irradiance_result, "irradiance domain"}}));
   io::writeTextFile(out.file("summary.txt"), chosen.summary() + "\nother domain: " + other.summary() + "\n");
   out.commit();
   std::printf("%s\nother domain: %s\nwrote %s/{deblurred,deblurred_other_domain,side_by_side}.png\n",
@@ -177,6 +298,17 @@ const CommandRegistration registration(
       command.add_option("--saturation", args->saturation,
                          "Pixels at or above this level (0..1) are saturated and left out of the TV data term")
           ->check(CLI::Range(0.01, 1.0));
+      command.add_option("--sharp", args->sharp,
+                         "The pair's sharp (short, noisy) shot: deblurred.png becomes residual deconvolution against "
+                         "it (Yuan et al. 2007, irradiance); registered by --from's report or else registered here");
+      command.add_option("--denoise-strength", args->denoise_strength,
+                         "--sharp: NL-means strength h of the sharp shot, in units of its estimated noise sigma")
+          ->check(CLI::Range(0.0, 10.0));
+      command.add_option("--ratio", args->ratio,
+                         "--sharp: exposure ratio r of the blurred to the sharp shot (default: fitted per channel)")
+          ->check(CLI::NonNegativeNumber);
+      command.add_flag("--registered", args->registered,
+                       "--sharp: the two shots are already registered (no registration, the report's ignored)");
       command.add_option("-o,--output", args->output, "Output directory (see --force)")->required();
       command.add_flag("--force", args->force, kForceHelp);
       return [args] { return runDeblur(*args); };
