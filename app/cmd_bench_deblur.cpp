@@ -16,6 +16,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "bench_deblur_real.hpp"
 #include "crfcal/blur_model.hpp"
 #include "crfcal/curve_perturbation.hpp"
 #include "crfcal/deconvolution.hpp"
@@ -66,6 +67,7 @@ struct DeblurBenchArgs {
   std::string noise_profiles;                // default: io::defaultNoiseProfiles()
   double denoise_strength = ResidualDeconvolutionOptions{}.denoise_strength;
   double residual_lambda = 0;                // TV λ of the residual (0: --lambda)
+  std::string real, reports;                 // --real DIR --reports CALDIR: the phone triplets
 };
 
 // One deblurred result's scores against the sharp image.
@@ -272,6 +274,15 @@ int runDeblurBench(const DeblurBenchArgs& args) {
               "table:" + (samples / "camera_curves" / "CanonEOS1DsMarkII.csv").string()};
   DeconvolutionOptions options = optionsOf(args);
   if (args.speed) return runSpeedBench(args, options);
+  if (!args.real.empty()) {
+    if (args.reports.empty()) throw InvalidInput("--real needs --reports CALDIR (CALDIR/N/report.json)", ErrorSubject::options);
+    ResidualDeconvolutionOptions residual;
+    residual.deconvolution = options;
+    if (args.residual_lambda > 0) residual.deconvolution.lambda = args.residual_lambda;
+    residual.denoise_strength = args.denoise_strength;
+    residual.check();
+    return runRealDeblurBench(args.real, args.reports, residual);
+  }
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, {"bench deblur", {}, args.force});  // before the work
 
   std::vector<cv::Mat> images, full_images;
@@ -427,6 +438,11 @@ const BenchRegistration registration(
           ->check(CLI::Range(0.0, 10.0));
       command.add_option("--residual-lambda", args->residual_lambda, "TV lambda of the residual (default: --lambda)")
           ->check(CLI::NonNegativeNumber);
+      command.add_option("--real", args->real,
+                         "Only the real triplets of DIR (noisy_N, blurred_N, g_truth_N.jpg), deblurred with --reports' "
+                         "calibrations and scored against g_truth_N");
+      command.add_option("--reports", args->reports,
+                         "--real: directory of the triplets' calibrations, N/report.json (crfcal calibrate -o DIR/N)");
       command.add_flag("--double", args->double_precision, "CV_64F DFTs (the reference) instead of CV_32F");
       command.add_option("--json", args->json, "Write every case to this JSON file (atomic)");
       command.add_flag("--force", args->force, kForceHelp);

@@ -13,6 +13,7 @@
 #include "crfcal/deconvolution.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/handheld_simulation.hpp"
+#include "crfcal/reference_comparison.hpp"
 #include "crfcal/residual_deconvolution.hpp"
 #include "crfcal/response_curve.hpp"
 #include "crfcal/response_model.hpp"
@@ -106,6 +107,22 @@ TEST(DeblurCli, SharpShotGivesResidualResultAndRejectsWrongSizeNamingTheFile) {
   };
   EXPECT_GT(psnr(unit("deblurred.png"), pair.scene), psnr(unit("deblurred_blind.png"), pair.scene) + 1.0);
   EXPECT_TRUE(std::filesystem::exists(dir / "out" / "side_by_side.png"));
+}
+
+}  // namespace
+}  // namespace crfcal
+
+namespace crfcal {
+namespace {
+
+TEST(ReferenceComparison, MonotoneBrightnessMatchUndoesAToneCurveOfTheReference) {
+  const cv::Mat target = test::levinImage(2)(cv::Rect(0, 0, 96, 96)).clone();
+  cv::Mat brighter;
+  cv::pow(target, 0.5, brighter);  // the reference: the same scene through another, brighter tone curve
+  const cv::Mat mask(target.size(), CV_8U, cv::Scalar(255));
+  const cv::Mat matched = matchBrightness(brighter, target, mask);
+  EXPECT_GT(scoreAgainstReference(target, matched, mask).psnr, 40.0);
+  EXPECT_LT(scoreAgainstReference(target, brighter, mask).psnr, 20.0);
 }
 
 }  // namespace
