@@ -37,6 +37,7 @@ struct DeblurArgs {
   std::string domain = "irradiance";
   std::string method = "tv";
   double lambda = DeconvolutionOptions{}.lambda;
+  int iterations = DeconvolutionOptions{}.inner_iterations;  // TV u-steps (fewer: faster, softer)
   double wiener_nsr = DeconvolutionOptions{}.wiener_nsr;
   double saturation = DeconvolutionOptions{}.saturation;
   std::string sharp;  // the pair's sharp shot: residual deconvolution (Yuan et al. 2007)
@@ -110,6 +111,7 @@ int runDeblur(const DeblurArgs& args) {
   options.method = parseDeconvolutionMethod(args.method);
   options.domain = parseDeconvolutionDomain(args.domain);
   options.lambda = args.lambda;
+  options.inner_iterations = args.iterations;
   options.wiener_nsr = args.wiener_nsr;
   options.saturation = args.saturation;
   options.check();
@@ -174,6 +176,9 @@ const CommandRegistration registration(
           ->check(CLI::IsMember({"tv", "wiener"}));
       command.add_option("--lambda", args->lambda, "TV data weight (larger: sharper, noisier)")
           ->check(CLI::PositiveNumber);
+      command.add_option("--iterations", args->iterations,
+                         "TV u-steps (default 25; 8 takes about 45 % of the time for about 0.8 dB less on the Levin set)")
+          ->check(CLI::Range(1, 500));
       command.add_option("--wiener-nsr", args->wiener_nsr, "Wiener noise-to-signal ratio")->check(CLI::PositiveNumber);
       command.add_option("--saturation", args->saturation,
                          "Pixels at or above this level (0..1) are saturated and left out of the TV data term")
