@@ -34,7 +34,9 @@ struct ResidualDeconvolutionOptions {
   // Deconvolution of the residual (method, λ, iterations, saturation mask, tiles). The domain is always irradiance.
   DeconvolutionOptions deconvolution;
   double ratio = 0;               // r = exposure of B / exposure of I (Eq. 4); 0: fitted per channel from the images
-  double denoise_strength = 3.0;  // NL-means h = this × the sharp shot's estimated noise σ (8-bit levels); bench deblur: 1 → 3 +0.9 dB
+  // NL-means strength h = this × the sharp shot's estimated noise σ (8-bit levels). bench deblur (r = 4, ISO 400 /
+  // ISO 3200 sharp shot): h = 3σ 36.60 / 32.48 dB, SSIM 0.944 / 0.916; 2σ 37.10 / 32.51 dB, SSIM 0.939 / 0.903.
+  double denoise_strength = 3.0;
   int template_window = 7;        // NL-means patch size (odd; OpenCV's recommended 7)
   int search_window = 21;         // NL-means search window (odd; OpenCV's recommended 21)
   void check() const;             // throws InvalidInput naming the bad option
