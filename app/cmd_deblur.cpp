@@ -48,7 +48,6 @@ struct DeblurArgs {
   bool force = false;  // write into an output directory holding other files (never deletes them)
 };
 
-
 // --sharp: residual deconvolution with the pair's sharp shot (irradiance) is deblurred.png; the blind results of
 // both domains are kept beside it.
 int writeWithSharp(const DeblurArgs& args, io::OutputDirectory& out, const cv::Mat& blurred, const cv::Mat& sharp,
