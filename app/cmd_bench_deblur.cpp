@@ -16,12 +16,16 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "bench_deblur_real.hpp"
 #include "crfcal/blur_model.hpp"
 #include "crfcal/curve_perturbation.hpp"
 #include "crfcal/deconvolution.hpp"
 #include "crfcal/image_quality.hpp"
 #include "crfcal/pair_calibration.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/handheld_simulation.hpp"
+#include "crfcal/residual_deconvolution.hpp"
+#include "crfcal/io/noise_profiles.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/output_guard.hpp"
 #include "crfcal/io/image_io.hpp"
@@ -54,6 +58,16 @@ struct DeblurBenchArgs {
   double beta_max = DeconvolutionOptions{}.beta_max;
   double phi_error = 0.02;  // RMSE of the perturbed φ (φ^a, a > 1 and a < 1 on alternate cases)
   bool estimated_phi = false;  // also deblur with the φ crfcal estimates from each simulated pair
+  // The pair's sharp shot as extra information (residual deconvolution, Yuan et al. 2007): a simulated sharp shot
+  // underexposed by pair_ratio with the noise camera's raw noise at ISO blurred_iso · pair_ratio.
+  bool pair = true;
+  double pair_ratio = 4;
+  double blurred_iso = 100;
+  std::string noise_camera = "LGE Nexus 5";  // darktable's phone profile (samples/noise_profiles excerpt)
+  std::string noise_profiles;                // default: io::defaultNoiseProfiles()
+  double denoise_strength = ResidualDeconvolutionOptions{}.denoise_strength;
+  double residual_lambda = 0;                // TV λ of the residual (0: --lambda)
+  std::string real, reports;                 // --real DIR --reports CALDIR: the phone triplets
 };
 
 // One deblurred result's scores against the sharp image.
@@ -76,6 +90,8 @@ struct Means {
   Scores estimated;             // --estimated-phi: irradiance domain with crfcal's φ of the pair
   int estimated_cases = 0;      // pairs whose calibration succeeded
   double estimated_phi_rmse = 0;
+  Scores residual, sharp_prior;  // with the pair's sharp shot: residual deconvolution, the denoised shot alone
+  int residual_ahead = 0;
 };
 
 std::string curveLabel(const std::string& spec) {
@@ -181,6 +197,8 @@ std::optional<ResponseCurve> estimatedCurve(const cv::Mat& sharp, const cv::Mat&
   }
 }
 
+void printEstimatedTable(const std::vector<std::pair<std::string, Means>>& rows);
+
 void printTables(const std::vector<std::pair<std::string, Means>>& rows) {
   std::printf("PSNR\n%-22s %5s %11s %13s %14s %9s %8s %16s\n", "curve", "cases", "blurred dB", "intensity dB",
               "irradiance dB", "gain dB", "ahead", "irr. phi off dB");
@@ -198,6 +216,23 @@ void printTables(const std::vector<std::pair<std::string, Means>>& rows) {
                 m.blurred.edge_rmse / m.cases, m.intensity.edge_rmse / m.cases, m.irradiance.edge_rmse / m.cases,
                 m.irradiance_off.edge_rmse / m.cases);
   if (rows.front().second.estimated_cases == 0 && rows.back().second.estimated_cases == 0) return;
+  printEstimatedTable(rows);
+}
+
+void printPairTable(const std::vector<std::pair<std::string, Means>>& rows, const std::string& setting) {
+  std::printf("with the pair's sharp shot (%s): residual deconvolution (Yuan et al. 2007) vs blind TV of the blurred "
+              "shot, both irradiance, true phi and kernel\n", setting.c_str());
+  std::printf("%-22s %5s %9s %9s %9s %8s %8s | %9s %9s %9s | %9s %9s %9s\n", "curve", "cases", "blind dB",
+              "sharp dB", "resid. dB", "gain dB", "ahead", "SSIM bl.", "sharp", "resid.", "edge bl.", "sharp", "resid.");
+  for (const auto& [label, m] : rows)
+    std::printf("%-22s %5d %9.2f %9.2f %9.2f %+8.2f %4d/%-3d | %9.4f %9.4f %9.4f | %9.4f %9.4f %9.4f\n",
+                label.c_str(), m.cases, m.irradiance.psnr / m.cases, m.sharp_prior.psnr / m.cases,
+                m.residual.psnr / m.cases, (m.residual.psnr - m.irradiance.psnr) / m.cases, m.residual_ahead, m.cases,
+                m.irradiance.ssim / m.cases, m.sharp_prior.ssim / m.cases, m.residual.ssim / m.cases,
+                m.irradiance.edge_rmse / m.cases, m.sharp_prior.edge_rmse / m.cases, m.residual.edge_rmse / m.cases);
+}
+
+void printEstimatedTable(const std::vector<std::pair<std::string, Means>>& rows) {
   std::printf("irradiance domain with the phi crfcal estimates from each pair (full 255 px images)\n");
   std::printf("%-22s %9s %10s %9s %9s %9s\n", "curve", "pairs ok", "phi RMSE", "PSNR dB", "SSIM", "edge RMSE");
   for (const auto& [label, m] : rows) {
@@ -239,6 +274,15 @@ int runDeblurBench(const DeblurBenchArgs& args) {
               "table:" + (samples / "camera_curves" / "CanonEOS1DsMarkII.csv").string()};
   DeconvolutionOptions options = optionsOf(args);
   if (args.speed) return runSpeedBench(args, options);
+  if (!args.real.empty()) {
+    if (args.reports.empty()) throw InvalidInput("--real needs --reports CALDIR (CALDIR/N/report.json)", ErrorSubject::options);
+    ResidualDeconvolutionOptions residual;
+    residual.deconvolution = options;
+    if (args.residual_lambda > 0) residual.deconvolution.lambda = args.residual_lambda;
+    residual.denoise_strength = args.denoise_strength;
+    residual.check();
+    return runRealDeblurBench(args.real, args.reports, residual);
+  }
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, {"bench deblur", {}, args.force});  // before the work
 
   std::vector<cv::Mat> images, full_images;
@@ -255,6 +299,25 @@ int runDeblurBench(const DeblurBenchArgs& args) {
   std::printf("%s deblurring, %zu images (%dx%d) x %zu Levin kernels, true kernel, 8-bit, no noise; irradiance with "
               "the true phi and with phi off by RMSE %.3f (phi^a, a > 1 and a < 1 on alternate cases)\n",
               args.method.c_str(), images.size(), images[0].cols, images[0].rows, kernels.size(), args.phi_error);
+  std::optional<PoissonGaussian> sharp_noise;
+  ResidualDeconvolutionOptions residual_options;
+  std::string pair_setting;
+  if (args.pair) {
+    const io::CameraNoiseProfile camera = io::readCameraNoiseProfile(
+        args.noise_profiles.empty() ? io::defaultNoiseProfiles() : fs::path(args.noise_profiles), args.noise_camera);
+    const double sharp_iso = args.blurred_iso * args.pair_ratio;
+    sharp_noise = camera.atIso(sharp_iso).green;
+    residual_options.deconvolution = options;
+    residual_options.deconvolution.domain = DeconvolutionDomain::Irradiance;
+    if (args.residual_lambda > 0) residual_options.deconvolution.lambda = args.residual_lambda;
+    residual_options.denoise_strength = args.denoise_strength;
+    residual_options.check();
+    char text[200];
+    std::snprintf(text, sizeof text, "sharp shot underexposed by r = %g, %s raw noise at ISO %g, 8-bit; residual TV "
+                  "lambda %g, NL-means h = %g sigma", args.pair_ratio, camera.camera().c_str(), sharp_iso,
+                  residual_options.deconvolution.lambda, args.denoise_strength);
+    pair_setting = text;
+  }
   std::vector<std::pair<std::string, Means>> rows;
   Means all;
   for (const std::string& spec : curves) {
@@ -284,6 +347,20 @@ int runDeblurBench(const DeblurBenchArgs& args) {
             m->estimated_phi_rmse += phi_rmse;
           }
         }
+        Scores residual, sharp_prior;
+        if (sharp_noise) {
+          const cv::Mat shot = underexposedSharpShot(images[i], io::parseResponseSpec(spec), args.pair_ratio,
+                                                     *sharp_noise, 1 + 16 * i + k);
+          const ResidualDeconvolutionResult r =
+              deconvolveResidual(blurred, shot, cv::Mat(), kernels[k], {curve}, residual_options);
+          residual = score(r.deblurred, images[i]);
+          sharp_prior = score(r.sharp_denoised, images[i]);
+          for (Means* m : {&means, &all}) {
+            m->residual += residual;
+            m->sharp_prior += sharp_prior;
+            m->residual_ahead += residual.psnr > irradiance.psnr;
+          }
+        }
         for (Means* m : {&means, &all}) {
           ++m->cases;
           m->blurred += before;
@@ -300,15 +377,20 @@ int runDeblurBench(const DeblurBenchArgs& args) {
                                  {"irradiance", entry(irradiance)}, {"irradiance_phi_off", entry(irradiance_off)},
                                  {"blurred_psnr", before.psnr}, {"intensity_psnr", intensity.psnr},
                                  {"irradiance_psnr", irradiance.psnr}});
+        if (sharp_noise) {
+          json["cases"].back()["residual_with_sharp"] = entry(residual);
+          json["cases"].back()["sharp_denoised"] = entry(sharp_prior);
+        }
         if (args.per_case)
-          std::printf("  %s im%zu levin:%zu  %.2f  %.2f  %.2f  %.2f\n", curveLabel(spec).c_str(), i + 1, k + 1,
-                      before.psnr, intensity.psnr, irradiance.psnr, irradiance_off.psnr);
+          std::printf("  %s im%zu levin:%zu  %.2f  %.2f  %.2f  %.2f  %.2f\n", curveLabel(spec).c_str(), i + 1, k + 1,
+                      before.psnr, intensity.psnr, irradiance.psnr, irradiance_off.psnr, residual.psnr);
       }
     rows.emplace_back(curveLabel(spec), means);
   }
   if (curves.size() > 1) rows.emplace_back("all", all);
   printTables(rows);
   printContrastTable(options);
+  if (args.pair) printPairTable(rows, pair_setting);
   std::printf("%.1f s\n", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   if (!args.json.empty()) io::writeJsonOutput(args.json, json, "bench deblur");
   return kExitOk;
@@ -344,6 +426,23 @@ const BenchRegistration registration(
       command.add_flag("--estimated-phi", args->estimated_phi,
                        "Also deblur with the phi crfcal estimates from each simulated pair (one pair calibration per "
                        "case: slow)");
+      command.add_flag("--pair,!--no-pair", args->pair,
+                       "Also deblur with a simulated sharp shot of the pair (residual deconvolution; default on)");
+      command.add_option("--pair-ratio", args->pair_ratio, "Underexposure r of the simulated sharp shot")
+          ->check(CLI::Range(1.0, 64.0));
+      command.add_option("--blurred-iso", args->blurred_iso, "ISO of the blurred shot (the sharp shot: ISO x r)")
+          ->check(CLI::PositiveNumber);
+      command.add_option("--noise-camera", args->noise_camera, "Camera of the sharp shot's noise (darktable profiles)");
+      command.add_option("--noise-profiles", args->noise_profiles, "darktable noiseprofiles.json");
+      command.add_option("--denoise-strength", args->denoise_strength, "NL-means h of the sharp shot, x its noise sigma")
+          ->check(CLI::Range(0.0, 10.0));
+      command.add_option("--residual-lambda", args->residual_lambda, "TV lambda of the residual (default: --lambda)")
+          ->check(CLI::NonNegativeNumber);
+      command.add_option("--real", args->real,
+                         "Only the real triplets of DIR (noisy_N, blurred_N, g_truth_N.jpg), deblurred with --reports' "
+                         "calibrations and scored against g_truth_N");
+      command.add_option("--reports", args->reports,
+                         "--real: directory of the triplets' calibrations, N/report.json (crfcal calibrate -o DIR/N)");
       command.add_flag("--double", args->double_precision, "CV_64F DFTs (the reference) instead of CV_32F");
       command.add_option("--json", args->json, "Write every case to this JSON file (atomic)");
       command.add_flag("--force", args->force, kForceHelp);

@@ -96,4 +96,21 @@ HandheldPair makeHandheldPair(const cv::Mat& photo, const ResponseModel& phi, co
   return pair;
 }
 
+cv::Mat underexposedSharpShot(const cv::Mat& scene, const ResponseModel& phi, double ratio, const PoissonGaussian& noise,
+                              std::uint64_t seed) {
+  if (scene.empty() || scene.channels() != 1) throw InvalidInput("the scene must be one non-empty channel");
+  if (!(ratio > 0)) throw InvalidInput("ratio must be > 0");
+  const ResponseCurve curve(phi);
+  cv::Mat irradiance = curve.inverse(toUnitGray(scene)) / ratio;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  for (int y = 0; y < irradiance.rows; ++y) {
+    double* p = irradiance.ptr<double>(y);
+    for (int x = 0; x < irradiance.cols; ++x) p[x] += std::sqrt(noise.variance(p[x])) * normal(rng);
+  }
+  cv::Mat shot;
+  curve.forward(cv::max(cv::min(irradiance, 1.0), 0.0)).convertTo(shot, CV_8U, 255.0);
+  return shot;
+}
+
 }  // namespace crfcal

@@ -45,4 +45,11 @@ struct HandheldPair {
 HandheldPair makeHandheldPair(const cv::Mat& photo, const ResponseModel& phi, const cv::Mat& kernel,
                               const HandheldPairOptions& options = {});
 
+// The sharp shot of a pair whose blurred shot is normally exposed (the BlurredNormal regime above) for a scene
+// given as intensities `scene` (one channel, CV_64F in [0,1], the normally exposed view): ψ(φ(scene) / r + n),
+// n Poisson–Gaussian camera noise of the short shot's ISO in the irradiance domain (`noise`), clipped, 8-bit,
+// registered with the scene (no handheld motion). CV_8U.
+cv::Mat underexposedSharpShot(const cv::Mat& scene, const ResponseModel& phi, double ratio, const PoissonGaussian& noise,
+                              std::uint64_t seed = 1);
+
 }  // namespace crfcal
