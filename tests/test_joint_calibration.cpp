@@ -5,9 +5,14 @@
 #include <iostream>
 #include <vector>
 
+#include <filesystem>
+#include <fstream>
+
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "crfcal/error.hpp"
+#include "crfcal/io/pair_manifest.hpp"
 #include "crfcal/joint_calibration.hpp"
 #include "crfcal/joint_crf_fit.hpp"
 #include "crfcal/response_model.hpp"
@@ -107,6 +112,74 @@ TEST(JointFit, RefusesABadPairNamingIt) {
 TEST(JointCalibration, NeedsTwoPairsWithTheirFitInputs) {
   EXPECT_THROW(calibrateJointly({PairCalibrationResult{}}), InvalidInput);
   EXPECT_THROW(calibrateJointly({PairCalibrationResult{}, PairCalibrationResult{}}), InvalidInput);
+}
+
+namespace fs = std::filesystem;
+
+std::string bin() { return test::crfcalBinary().string(); }
+
+TEST(PairManifest, ReadsPairsRelativeToTheManifestSkippingCommentsAndHeader) {
+  test::TempDir dir;
+  fs::create_directories(dir / "sub");
+  std::ofstream(dir / "sub" / "pairs.csv") << "sharp,blurred\n# the first pair\na.jpg,b.jpg\n\n"
+                                              "\"c d.jpg\" /abs/e.jpg\n";
+  const auto pairs = io::readPairManifest(dir / "sub" / "pairs.csv");
+  ASSERT_EQ(pairs.size(), 2u);
+  EXPECT_EQ(pairs[0].first, dir / "sub" / "a.jpg");
+  EXPECT_EQ(pairs[0].second, dir / "sub" / "b.jpg");
+  EXPECT_EQ(pairs[1].first, dir / "sub" / "c d.jpg");
+  EXPECT_EQ(pairs[1].second, fs::path("/abs/e.jpg"));
+  std::ofstream(dir / "bad.txt") << "a.jpg b.jpg\nonly_one.jpg\n";
+  try {
+    io::readPairManifest(dir / "bad.txt");
+    FAIL() << "a line with one path was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.txt:2"), std::string::npos) << e.what();
+  }
+  std::ofstream(dir / "empty.txt") << "# nothing\n";
+  EXPECT_THROW(io::readPairManifest(dir / "empty.txt"), Error);
+}
+
+TEST(CalibrateJointCli, RefusesAMissingPairFileWithOneLineAndWritesNothing) {
+  test::TempDir dir;
+  const fs::path pairs = test::samples() / "pairs";
+  const auto r = test::run(bin() + " calibrate -q --pair " + (pairs / "sharp.jpg").string() + " " +
+                           (pairs / "blurred.jpg").string() + " --pair " + (pairs / "sharp.jpg").string() +
+                           " /nonexistent/b2.jpg -o " + (dir / "out").string());
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("crfcal: error: /nonexistent/b2.jpg: no such file"), std::string::npos) << r.output;
+  EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "out"));
+  // one pair is not a joint calibration; --ratio names one pair's data
+  const std::string one = " --pair " + (pairs / "sharp.jpg").string() + " " + (pairs / "blurred.jpg").string();
+  EXPECT_EQ(test::run(bin() + " calibrate -q" + one + " -o " + (dir / "out").string()).exit_code, 1);
+  EXPECT_EQ(test::run(bin() + " calibrate -q" + one + one + " --ratio 2 -o " + (dir / "out").string()).exit_code, 1);
+  EXPECT_FALSE(fs::exists(dir / "out"));
+}
+
+// The bundled pair twice through a manifest (plumbing, not accuracy): one φ per channel, both pairs in report.json.
+TEST(CalibrateJointCli, ManifestRunWritesTheJointReport) {
+  test::TempDir dir;
+  const fs::path pairs = test::samples() / "pairs";
+  std::ofstream(dir / "pairs.txt") << (pairs / "sharp.jpg").string() << " " << (pairs / "blurred.jpg").string() << "\n"
+                                   << (pairs / "sharp.jpg").string() << " " << (pairs / "blurred.jpg").string() << "\n";
+  const auto r = test::run(bin() + " calibrate -q --pairs " + (dir / "pairs.txt").string() +
+                           " --channels g --rounds 1 --no-effects --band-replicates 2 -o " + (dir / "out").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream in(dir / "out" / "report.json");
+  const nlohmann::json report = nlohmann::json::parse(in);
+  EXPECT_EQ(report["inverse_crf"]["G"].size(), 1024u);
+  ASSERT_EQ(report["joint"]["pairs"].size(), 2u);
+  EXPECT_TRUE(report["joint"]["pairs"][0]["report"].contains("inverse_crf"));
+  EXPECT_EQ(report["inverse_crf_band"]["G"]["lower"].size(), 1024u);
+  EXPECT_TRUE(report["verdict"].contains("G"));
+  EXPECT_TRUE(fs::exists(dir / "out" / "curve.png"));
+  EXPECT_TRUE(fs::exists(dir / "out" / "kernel_2.txt"));
+  // the same pair twice: the joint φ is that pair's φ, up to the fitter's tolerance
+  const auto& own = report["joint"]["pairs"][0]["report"]["inverse_crf"]["G"];
+  double worst = 0;
+  for (int i = 0; i < 1024; ++i) worst = std::max(worst, std::abs(double(own[i]) - double(report["inverse_crf"]["G"][i])));
+  EXPECT_LT(worst, 0.01);
 }
 
 }  // namespace

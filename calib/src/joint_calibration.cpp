@@ -132,6 +132,18 @@ void warnAboutGaps(JointCalibrationResult& result) {
   }
 }
 
+// Fraction of `phi`'s samples over [lo, hi] inside the band's [lower, upper].
+double fractionInside(const std::vector<double>& phi, const CurveBand& band, std::pair<double, double> range) {
+  int n = 0, inside = 0;
+  for (std::size_t i = 0; i < phi.size() && i < band.lower.size(); ++i) {
+    const double x = double(i) / (phi.size() - 1);
+    if (x < range.first || x > range.second) continue;
+    ++n;
+    inside += phi[i] >= band.lower[i] - 1e-12 && phi[i] <= band.upper[i] + 1e-12;
+  }
+  return n > 0 ? double(inside) / n : 0.0;
+}
+
 }  // namespace
 
 void JointCalibrationOptions::check() const {
@@ -151,6 +163,8 @@ std::string JointCalibrationResult::summary() const {
       s << "\n  pair " << p + 1 << ": r " << format("%.4g held (at the joint phi %.4g)", pairs[p].ratio.at(c),
                                                        pairs[p].ratio_at_joint_phi.at(c))
         << ", covered " << format("%.2f-%.2f", plo, phi) << ", " << pairs[p].pixels_used.at(c) << " pixels";
+      if (const auto it = pairs[p].own_curve_inside_band.find(c); it != pairs[p].own_curve_inside_band.end())
+        s << format(", its own phi inside the joint band over its range: %.0f %%", 100 * it->second);
     }
   }
   for (const auto& [c, band] : bands) s << "\nband " << c << ": " << band.summary();
@@ -196,6 +210,9 @@ JointCalibrationResult calibrateJointly(const std::vector<PairCalibrationResult>
       start = Clock::now();
       result.bands[c] = jointBand(inputs, joint, fit_options, covered, options.band);
       result.timings["joint_band"] += secondsSince(start);
+      for (std::size_t p = 0; p < pairs.size(); ++p)
+        result.pairs[p].own_curve_inside_band[c] =
+            fractionInside(pairs[p].fits.at(c).inverse_crf, result.bands[c], result.pairs[p].covered_range.at(c));
     }
     result.fits[c] = std::move(joint.fit);
   }

@@ -39,6 +39,9 @@ struct JointPairSummary {
   std::map<std::string, std::pair<double, double>> covered_range;  // per channel: the pair's own covered range
   std::map<std::string, long long> pixels_used;      // per channel, in the joint fit
   std::map<std::string, VerdictLevel> verdict;       // per channel: the pair's own verdict
+  // Per channel, with a band: the fraction of the pair's own φ samples over its own covered range that lie inside
+  // the joint band [lower, upper] (issue 19: the joint band should contain each single pair's "ok" curve there).
+  std::map<std::string, double> own_curve_inside_band;
 };
 
 struct JointCalibrationResult {
