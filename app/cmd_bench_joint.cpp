@@ -42,6 +42,12 @@ struct JointBenchArgs {
   int pairs = 3;
   int max_side = 600;
   int band_replicates = 8;  // of the joint fit (the single pairs' bands are not computed: not compared here)
+  // Fraction of the photo's tonal range kept (about its middle grey) before it is re-exposed: a low-contrast scene,
+  // so that each pair covers only part of [0, 1] and the pairs' exposures move their ranges apart. 1: the photo as
+  // it is (the wide-range scenes of bench pairs cover 0-0.9 at any exposure).
+  double contrast = 0.35;
+  std::string joint_ratio = "pair";  // the r each pair holds in the joint fit: pair (its single-pair r) or exif
+  bool band_fixed_ratio = false;     // the joint band's replicates hold r (no draws from its uncertainty)
   std::string output;
   bool force = false;
 };
@@ -53,9 +59,9 @@ const char* kPhotos[] = {"brackets/nikon_e995_window/HDRI_Sample_Scene_Window_-_
 const char* kCurves[] = {"NikonD70", "CanonPowerShotG9", "SonyDSLR-A100"};
 const char* kKernels[] = {"levin:1", "levin:3", "levin:8", "levin:2", "levin:5", "levin:6"};
 
-// Pair p of n: its mean irradiance spread in log from dark (0.08) to bright (0.6), so that the covered ranges
-// differ; r = 2 for the darker half (the blurred shot reaches higher), 1 for the brighter (it would clip).
-double pairExposure(int p, int n) { return n == 1 ? 0.3 : 0.08 * std::pow(0.6 / 0.08, double(p) / (n - 1)); }
+// Pair p of n: its mean irradiance spread in log from dark (0.04) to bright (0.5), so that the covered ranges
+// differ; r = 2 for the darker pairs (the blurred shot reaches higher), 1 for the brighter (it would clip).
+double pairExposure(int p, int n) { return n == 1 ? 0.2 : 0.04 * std::pow(0.5 / 0.04, double(p) / (n - 1)); }
 double pairRatio(int p, int n) { return pairExposure(p, n) < 0.25 ? 2.0 : 1.0; }
 
 struct Scores {
@@ -110,6 +116,9 @@ class JointRun {
     }
     JointCalibrationOptions options;
     options.band.replicates = args.band_replicates;
+    options.ratio_source = args.joint_ratio == "exif" ? JointCalibrationOptions::RatioSource::nominal
+                                                      : JointCalibrationOptions::RatioSource::pair_fit;
+    options.band_varies_ratio = !args.band_fixed_ratio;
     const JointCalibrationResult joint = calibrateJointly(results, options);
     const auto union_range = joint.covered_range.at("G");
     const Scores j = score(joint.fits.at("G").inverse_crf, truth, union_range, union_range);
@@ -195,7 +204,9 @@ class JointRun {
     ho.shift_y = 4.3 * std::sin(angle);
     ho.rotation_deg = p % 2 ? 0.4 : -0.4;
     ho.seed = static_cast<std::uint64_t>(p + 1);
-    const HandheldPair pair = makeHandheldPair(photo, truth, io::kernelFromSpec(kernel_spec), ho);
+    cv::Mat scene;
+    photo.convertTo(scene, -1, args.contrast, 127.5 * (1 - args.contrast));  // its range about mid grey
+    const HandheldPair pair = makeHandheldPair(scene, truth, io::kernelFromSpec(kernel_spec), ho);
     fs::create_directories(dir);
     io::writeJpeg(dir / "sharp.jpg", pair.sharp, 95);
     io::writeJpeg(dir / "blurred.jpg", pair.blurred, 95);
@@ -276,6 +287,16 @@ const BenchRegistration registration(
       command.add_option("--max-side", args->max_side, "Downscale the photos to this longest side")
           ->capture_default_str()
           ->check(CLI::Range(128, 4096));
+      command.add_option("--contrast", args->contrast,
+                         "Fraction of each photo's tonal range kept before it is re-exposed (1: as it is)")
+          ->capture_default_str()
+          ->check(CLI::Range(0.05, 1.0));
+      command.add_option("--joint-ratio", args->joint_ratio,
+                         "The r each pair holds in the joint fit: pair (its final single-pair r) or exif (its EXIF r)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"pair", "exif"}));
+      command.add_flag("--band-fixed-ratio", args->band_fixed_ratio,
+                       "The joint band's replicates hold each pair's r (ablation: no draws from its uncertainty)");
       command.add_option("--band-replicates", args->band_replicates, "Half-sample refits of the joint band (even; 0: none)")
           ->capture_default_str()
           ->check(CLI::Range(0, 200));

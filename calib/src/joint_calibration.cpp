@@ -4,7 +4,9 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <random>
 #include <sstream>
 
 #include "crfcal/error.hpp"
@@ -34,22 +36,41 @@ std::vector<std::string> commonChannels(const std::vector<PairCalibrationResult>
   return channels;
 }
 
-// Channel `c` of every pair as the joint fitter takes it; r held at the pair's final single-pair r.
-std::vector<JointFitPair> jointInputs(const std::vector<PairCalibrationResult>& pairs, const std::string& c) {
+// Channel `c` of every pair as the joint fitter takes it; r held at the pair's final single-pair r or its nominal
+// one (options.ratio_source).
+std::vector<JointFitPair> jointInputs(const std::vector<PairCalibrationResult>& pairs, const std::string& c,
+                                      const JointCalibrationOptions& options) {
   std::vector<JointFitPair> inputs;
   for (const auto& pair : pairs) {
     const PairFitInputs& in = pair.fit_inputs;
-    JointFitPair p{in.sharp.at(c), in.blurred.at(c), in.kernel, in.options, pair.fits.at(c).ratio};
+    const bool nominal = options.ratio_source == JointCalibrationOptions::RatioSource::nominal;
+    const double ratio = nominal ? pair.fits.at(c).nominal_ratio : pair.fits.at(c).ratio;
+    JointFitPair p{in.sharp.at(c), in.blurred.at(c), in.kernel, in.options, ratio};
     if (const auto it = in.sharp_error.find(c); it != in.sharp_error.end()) p.options.sharp_error_bound = it->second;
     inputs.push_back(std::move(p));
   }
   return inputs;
 }
 
+// σ of log r of each pair's held r (JointCalibrationOptions::band_varies_ratio).
+std::vector<double> ratioLogSigmas(const std::vector<PairCalibrationResult>& pairs, const JointCalibrationOptions& options) {
+  std::vector<double> sigmas;
+  for (const auto& pair : pairs) {
+    const RatioEvidence& e = pair.ratio_evidence;
+    const bool nominal = options.ratio_source == JointCalibrationOptions::RatioSource::nominal;
+    sigmas.push_back(!options.band_varies_ratio ? 0.0
+                     : !nominal && e.combined  ? e.log_sigma
+                                               : RatioEvidenceOptions{}.nominal_log_sigma);
+  }
+  return sigmas;
+}
+
 // The band of the joint φ: every replicate halves the blocks of every pair at once (complementary pairs of
-// replicates in each pair), refits jointly, and bandFromReplicates turns the spread into the shape band and adds
-// the scale bound above the union (curve_band.hpp).
-CurveBand jointBand(const std::vector<JointFitPair>& inputs, const JointCrfFitResult& fit, const JointCrfFitOptions& fit_options,
+// replicates in each pair) and draws each pair's r from its uncertainty (antithetic in each complementary pair),
+// refits jointly, and bandFromReplicates turns the spread into the shape band and adds the scale bound above the
+// union (curve_band.hpp).
+CurveBand jointBand(const std::vector<JointFitPair>& inputs, const std::vector<double>& ratio_log_sigmas,
+                    const JointCrfFitResult& fit, const JointCrfFitOptions& fit_options,
                     std::pair<double, double> covered, const CurveBandOptions& options) {
   const auto start = Clock::now();
   std::vector<std::vector<cv::Mat>> masks;  // per pair, per replicate (empty: the pair is used whole)
@@ -60,10 +81,16 @@ CurveBand jointBand(const std::vector<JointFitPair>& inputs, const JointCrfFitRe
   }
   std::vector<std::vector<double>> curves;
   int failed = 0;
+  std::mt19937_64 rng(options.seed);
+  std::normal_distribution<double> normal;
+  std::vector<double> z(inputs.size(), 0.0);
   for (int j = 0; j < options.replicates; ++j) {
     std::vector<JointFitPair> half = inputs;
-    for (std::size_t p = 0; p < half.size(); ++p)
+    for (std::size_t p = 0; p < half.size(); ++p) {
       if (static_cast<int>(masks[p].size()) > j) half[p].options.pixel_selection = masks[p][j];
+      z[p] = j % 2 ? -z[p] : normal(rng);
+      half[p].ratio *= std::exp(z[p] * ratio_log_sigmas[p]);
+    }
     try {
       curves.push_back(fitInverseCrfJointly(half, fit_options).fit.inverse_crf);
     } catch (const InvalidInput&) {
@@ -187,7 +214,7 @@ JointCalibrationResult calibrateJointly(const std::vector<PairCalibrationResult>
   fit_options.model = options.model;
   for (const auto& c : result.channels) {
     auto start = Clock::now();
-    const std::vector<JointFitPair> inputs = jointInputs(pairs, c);
+    const std::vector<JointFitPair> inputs = jointInputs(pairs, c, options);
     JointCrfFitResult joint = fitInverseCrfJointly(inputs, fit_options);
     std::pair<double, double> covered{1, 0};
     for (std::size_t p = 0; p < pairs.size(); ++p) {
@@ -208,7 +235,7 @@ JointCalibrationResult calibrateJointly(const std::vector<PairCalibrationResult>
     result.timings["joint_fit"] += secondsSince(start);
     if (options.band.replicates > 0) {
       start = Clock::now();
-      result.bands[c] = jointBand(inputs, joint, fit_options, covered, options.band);
+      result.bands[c] = jointBand(inputs, ratioLogSigmas(pairs, options), joint, fit_options, covered, options.band);
       result.timings["joint_band"] += secondsSince(start);
       for (std::size_t p = 0; p < pairs.size(); ++p)
         result.pairs[p].own_curve_inside_band[c] =

@@ -27,7 +27,17 @@ struct JointCalibrationOptions {
   // The model of the joint φ and its priors: the single pair's defaults (PairCalibrationOptions::fit), so that the
   // joint and the single fits differ only in their data. Its ratio settings are ignored: each pair's r is held.
   CrfFitOptions model = PairCalibrationOptions{}.fit;
+  // Where each pair's held r comes from: its final single-pair r (pair_fit: the images combined with EXIF,
+  // ratio_evidence.hpp) or its nominal ratio (EXIF or --ratio).
+  enum class RatioSource { pair_fit, nominal };
+  RatioSource ratio_source = RatioSource::pair_fit;
   CurveBandOptions band;   // the joint band (replicates = 0: none)
+  // The band's replicates also draw each pair's held r from its uncertainty: log r + z·σ, z ~ N(0, 1) (antithetic
+  // in each complementary pair of replicates), σ the pair's ratio evidence σ (RatioEvidence::log_sigma; EXIF's
+  // nominal σ when the evidence was not combined or r is the nominal one). The half-samples alone see only the
+  // images' sampling error, not the error of the r the joint fit holds, which biases φ along φ^γ, r^γ.
+  // false: r as held in every replicate.
+  bool band_varies_ratio = true;
   VerdictOptions verdict;  // the joint verdict's thresholds
   void check() const;      // throws InvalidInput
 };
