@@ -1,6 +1,7 @@
 // crfcal calibrate SHARP BLURRED -o DIR: a real handheld JPEG or RAW pair in, the camera's response out (Sec. 4).
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <cstdio>
 #include <memory>
 #include <optional>
@@ -16,12 +17,15 @@
 #include "crfcal/io/calibration_figures.hpp"
 #include "crfcal/io/calibration_report.hpp"
 #include "crfcal/io/image_io.hpp"
+#include "crfcal/io/joint_calibration_report.hpp"
+#include "crfcal/io/pair_manifest.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/pair_input.hpp"
 #include "crfcal/io/plot.hpp"
 #include "crfcal/io/report.hpp"
 #include "crfcal/io/response_io.hpp"
 #include "crfcal/curve_comparison.hpp"
+#include "crfcal/joint_calibration.hpp"
 #include "crfcal/pair_calibration.hpp"
 #include "crfcal/pair_checks.hpp"
 #include "crfcal/raw_truth.hpp"
@@ -61,6 +65,11 @@ struct CalibrateArgs {
   std::string raw_truth;            // RAW (or linear image) of one of the two shots
   std::string raw_truth_of = "auto";  // which shot it is: auto (EXIF), sharp, blurred
   bool force = false;               // write into an output directory holding other files (never deletes them)
+  // A joint calibration of several pairs of one camera (joint_calibration.hpp): --pair SHARP BLURRED (repeated)
+  // and/or a manifest --pairs FILE; then SHARP BLURRED are not given.
+  std::vector<std::pair<std::string, std::string>> pairs;
+  std::string pairs_file;
+  bool joint() const { return !pairs.empty() || !pairs_file.empty(); }
 };
 
 // Which shot of the pair the --raw-truth file belongs to: given, else the one with the same exposure time (and ISO,
@@ -378,12 +387,127 @@ int runCalibrate(const CalibrateArgs& args) {
   return strictExitCode(args, result);
 }
 
+// ---- a joint calibration of several pairs (--pair / --pairs; joint_calibration.hpp)
+
+// The pairs of the command line then of the manifest, each file checked to exist (one line naming a missing one).
+std::vector<io::PairPaths> jointPairPaths(const CalibrateArgs& args) {
+  std::vector<io::PairPaths> paths;
+  for (const auto& [sharp, blurred] : args.pairs) {
+    if (sharp.empty() || blurred.empty()) throw Error("--pair needs two files: SHARP BLURRED", sharp);
+    paths.emplace_back(sharp, blurred);
+  }
+  if (!args.pairs_file.empty())
+    for (const auto& p : io::readPairManifest(args.pairs_file)) paths.push_back(p);
+  if (paths.size() < 2) throw Error("a joint calibration needs at least two pairs (--pair SHARP BLURRED, repeated, or "
+                                    "--pairs FILE)");
+  for (const auto& [sharp, blurred] : paths)
+    for (const auto& file : {sharp, blurred})
+      if (!std::filesystem::is_regular_file(file)) throw Error("no such file (a --pair/--pairs input)", file.string());
+  return paths;
+}
+
+// Options that name one pair's data make no sense for several.
+void requireJointCompatible(const CalibrateArgs& args) {
+  if (!args.first.empty() || !args.second.empty())
+    throw Error("give either SHARP BLURRED or --pair/--pairs, not both", args.first);
+  for (const auto& [flag, given] : {std::pair<const char*, bool>{"--ratio", args.ratio > 0},
+                                    {"--kernel", !args.kernel_file.empty()},
+                                    {"--raw-truth", !args.raw_truth.empty()}})
+    if (given) throw Error(std::string(flag) + " applies to one pair; it cannot be combined with --pair/--pairs");
+}
+
+int runCalibrateJoint(const CalibrateArgs& args) {
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  requireJointCompatible(args);
+  if (args.threads > 0) cv::setNumThreads(args.threads);
+  const std::vector<io::PairPaths> paths = jointPairPaths(args);
+  std::vector<std::filesystem::path> inputs;
+  if (!args.pairs_file.empty()) inputs.push_back(args.pairs_file);
+  for (const auto& [sharp, blurred] : paths) inputs.push_back(sharp), inputs.push_back(blurred);
+  io::OutputDirectory out(args.output, {"calibrate", inputs, args.force});
+  Progress progress(args.quiet);
+  io::RawDecodeOptions raw;
+  raw.camera_white_balance = !args.no_white_balance;
+  std::vector<io::LoadedPair> loaded;
+  std::vector<double> nominal;
+  std::vector<PairCalibrationResult> results;
+  for (std::size_t p = 0; p < paths.size(); ++p) {
+    CalibrateArgs one = args;
+    one.first = paths[p].first.string();
+    one.second = paths[p].second.string();
+    progress.stage("decode " + std::to_string(p + 1));
+    loaded.push_back(decodePair(one, raw));
+    progress.done(loaded.back().sharp.path.filename().string() + " + " + loaded.back().blurred.path.filename().string());
+    nominal.push_back(nominalRatio(one, loaded.back()));
+    PairCalibrationOptions options = calibrationOptions(one, nominal.back());
+    options.keep_fit_inputs = true;
+    options.sharp_stored_chroma = {loaded.back().sharp.chroma_block_h, loaded.back().sharp.chroma_block_v};
+    if (args.chroma_model == "auto") options.sharp_chroma = options.sharp_stored_chroma;
+    StageProgress stages{progress, {}};
+    options.progress = [&stages, p](const std::string& stage, double fraction, const std::string& detail) {
+      stages.report("pair " + std::to_string(p + 1) + " " + stage, fraction, detail);
+    };
+    results.push_back(calibrateNamingFiles(loaded.back(), options));
+    stages.finish();
+  }
+  progress.stage("joint fit");
+  JointCalibrationOptions joint_options;
+  joint_options.model = calibrationOptions(args, 1.0).fit;
+  joint_options.band.replicates = args.band_replicates;
+  const JointCalibrationResult joint = calibrateJointly(results, joint_options);
+  progress.done();
+
+  progress.stage("write");
+  std::vector<io::CalibrationReportContext> contexts;
+  for (std::size_t p = 0; p < loaded.size(); ++p)
+    contexts.push_back({loaded[p], nominal[p], "exif", args.fix_ratio, args.ratio_prior, nullptr});
+  io::CalibrationReport report = io::jointCalibrationReport(joint, results, contexts);
+  writeInverseCrfCsv(out, report);
+  for (std::size_t p = 0; p < results.size(); ++p)
+    io::writeKernelText(out.file("kernel_" + std::to_string(p + 1) + ".txt"), results[p].kernel.kernel);
+  PairCalibrationResult shown;  // the joint curves in curve.png's form
+  for (const auto& [c, fit] : joint.fits) shown.fits[c] = fit;
+  shown.bands = joint.bands;
+  shown.covered_range = joint.covered_range;
+  shown.verdicts = joint.verdicts;
+  io::writeCalibrationCurveFigure(out.file("curve.png"), {shown, loaded.front()});
+  report.timings["total"] = secondsSince(start);
+  io::writeReport(out.file("report.json"), report);
+  out.commit();
+  progress.done();
+
+  std::printf("%s\n", joint.summary().c_str());
+  for (const auto& w : report.warnings) std::printf("warning: %s\n", w.c_str());
+  std::printf("wrote %s/{report.json, inverse_crf.csv, curve.png, kernel_1..%zu.txt}\n", args.output.c_str(),
+              results.size());
+  for (const char* c : {"R", "G", "B"})
+    if (joint.verdicts.count(c)) std::printf("verdict %s: %s\n", c, joint.verdicts.at(c).summary().c_str());
+  if (!args.strict || worstLevel(joint.verdicts) != VerdictLevel::unreliable) return kExitOk;
+  std::fflush(stdout);
+  std::fprintf(stderr, "crfcal: --strict: a channel of the joint fit is unreliable; outputs written to %s; exit %d\n",
+               args.output.c_str(), kExitUnreliable);
+  return kExitUnreliable;
+}
+
 const CommandRegistration registration(
     30, "calibrate", "Measure the camera response from a real handheld sharp/blurred pair (JPEG, PNG, TIFF or RAW; Sec. 4)",
     [](CLI::App& command) {
       auto args = std::make_shared<CalibrateArgs>();
-      command.add_option("SHARP", args->first, "The short-exposure (sharp, noisy) shot")->required();
-      command.add_option("BLURRED", args->second, "The long-exposure (blurred) shot")->required();
+      command.add_option("SHARP", args->first, "The short-exposure (sharp, noisy) shot");
+      command.add_option("BLURRED", args->second, "The long-exposure (blurred) shot");
+      command.add_option("--pair", args->pairs,
+                         "SHARP BLURRED of one pair, repeated: several pairs of one camera fitted jointly (one phi per "
+                         "channel, each pair's own kernel and r; instead of SHARP BLURRED)");
+      command.add_option("--pairs", args->pairs_file,
+                         "A manifest of pairs fitted jointly: one \"SHARP BLURRED\" a line (.csv or .txt; paths "
+                         "relative to the manifest)");
+      // SHARP and BLURRED are required unless the pairs come from --pair/--pairs (CLI11's own message and exit).
+      command.parse_complete_callback([args] {
+        if (args->joint()) return;
+        if (args->first.empty()) throw CLI::RequiredError("SHARP");
+        if (args->second.empty()) throw CLI::RequiredError("BLURRED");
+      });
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
       command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--chroma-model", args->chroma_model,
@@ -468,7 +592,7 @@ const CommandRegistration registration(
                        "Exit with code 4 when any channel's verdict is \"unreliable\" (the outputs are still written; "
                        "report.json verdict_reasons says why)");
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
-      return [args] { return runCalibrate(*args); };
+      return [args] { return args->joint() ? runCalibrateJoint(*args) : runCalibrate(*args); };
     });
 
 }  // namespace

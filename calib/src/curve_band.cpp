@@ -50,6 +50,8 @@ std::vector<double> shapeHalfWidth(const std::vector<double>& phi, const std::ve
   return width;
 }
 
+}  // namespace
+
 // Random halves of the blocks holding used pixels, in complementary pairs (antithetic: every block is in exactly
 // one of each pair), as pixel masks.
 std::vector<cv::Mat> halfSampleMasks(const cv::Mat& used, int block, int count, std::uint64_t seed) {
@@ -73,8 +75,6 @@ std::vector<cv::Mat> halfSampleMasks(const cv::Mat& used, int block, int count, 
   }
   return masks;
 }
-
-}  // namespace
 
 void CurveBandOptions::check() const {
   if (!(level > 0 && level < 1)) throw InvalidInput("band: level must be in (0, 1)");

@@ -3,6 +3,7 @@
 #include <cstdio>
 
 #include "crfcal/error.hpp"
+#include "crfcal/kernel.hpp"
 #include "pair_stages.hpp"
 
 // calibratePair as a sequence of named stages over one state (pair_stages.hpp says which file holds which stage).
@@ -80,6 +81,15 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   detail::combineRatioWithNominal(state);
   detail::computeVerdict(state);
   if (options.band.replicates > 0) detail::estimateBands(state);
+  if (options.keep_fit_inputs) {
+    PairFitInputs& inputs = state.result.fit_inputs;
+    inputs.sharp = std::move(state.window_sharp);
+    inputs.blurred = std::move(state.window_blurred);
+    inputs.sharp_error = std::move(state.window_sharp_error);
+    inputs.kernel = cropKernel(state.kernel, 0.0);  // as fitChannel hands it to the fitter
+    inputs.options = state.fit_options;
+    inputs.options.progress = nullptr;
+  }
   return std::move(state.result);
 }
 

@@ -122,6 +122,10 @@ void writeWeightsFigure(const std::filesystem::path& path, const CalibrationFigu
 
 }  // namespace
 
+void writeCalibrationCurveFigure(const std::filesystem::path& path, const CalibrationFigureInputs& inputs) {
+  writeCurveFigure(path, inputs);
+}
+
 void writeCalibrationFigures(const std::filesystem::path& directory, const CalibrationFigureInputs& inputs) {
   writeCurveFigure(directory / "curve.png", inputs);
   writeGammaFigure(directory / "gamma_map.png", inputs);

@@ -97,6 +97,11 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
                                     const CrfFitOptions& fit_options, const cv::Mat& used_mask, int replicates,
                                     int block_size, std::uint64_t seed);
 
+// Random halves of the `block`-pixel blocks holding non-zero pixels of `used` (CV_8U), `count` of them in
+// complementary pairs (every block is in exactly one half of each pair), as CV_8U pixel masks; none for fewer than
+// 4 blocks. The resampling of refitOnHalfSamples (and of the joint fit's band, joint_calibration.hpp).
+std::vector<cv::Mat> halfSampleMasks(const cv::Mat& used, int block, int count, std::uint64_t seed);
+
 // Refits φ on `options.replicates` half-samples of the blocks that hold `fit`'s used pixels (fit.pixels.used_mask)
 // with the same images, kernel and fit options (CrfFitOptions::pixel_selection), then bandFromReplicates.
 CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,

@@ -82,6 +82,10 @@ struct PairCalibrationOptions {
   // kernel↔φ rounds; enabled = false: r from the images alone.
   RatioEvidenceOptions ratio_evidence;
   std::string nominal_ratio_name = "EXIF";  // how the verdict's reasons name fit.nominal_ratio ("EXIF", "--ratio")
+  // Keep the fit's inputs in the result (PairCalibrationResult::fit_inputs: the fit window of both shots per
+  // channel, the final kernel, the fit's options) for a joint fit of several pairs (joint_calibration.hpp).
+  // false: not kept (a few MB per pair).
+  bool keep_fit_inputs = false;
   std::function<void(const std::string& stage, double fraction, const std::string& detail)> progress;
   void check() const;                // throws InvalidInput
 };
@@ -92,6 +96,16 @@ struct CalibrationRound {
   double phi_change = 0;       // RMSE of φ_G against the previous round (0 for round 0)
   double ratio = 1;            // fitted r of G
   double kernel_residual = 0;  // relative gradient-domain residual of the kernel fit
+};
+
+// What the φ fit of each channel saw (PairCalibrationOptions::keep_fit_inputs): enough to refit the pair's data,
+// alone or jointly with other pairs of the same camera (joint_calibration.hpp).
+struct PairFitInputs {
+  std::map<std::string, cv::Mat> sharp, blurred;  // per channel: both shots in the fit window (0 outside the overlap)
+  std::map<std::string, cv::Mat> sharp_error;     // per channel: the chroma error bound (subsampled JPEG only)
+  cv::Mat kernel;                                 // the final kernel, cropped as the fitter gets it
+  CrfFitOptions options;                          // the fit's options (r's hold and the noise handling included)
+  bool empty() const { return sharp.empty(); }
 };
 
 struct PairCalibrationResult {
@@ -128,6 +142,7 @@ struct PairCalibrationResult {
   // the verdict (channel_verdict.hpp).
   std::map<std::string, double> brightness_ratio;
   std::map<std::string, ChannelVerdict> verdicts;
+  PairFitInputs fit_inputs;  // empty unless options.keep_fit_inputs
   std::string summary() const;
 };
 

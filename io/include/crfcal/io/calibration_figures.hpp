@@ -20,6 +20,10 @@ struct CalibrationFigureInputs {
   const std::map<std::string, std::vector<double>>* raw_truth = nullptr;  // RAW truth φ per channel, if measured
 };
 
+// curve.png alone (a joint calibration of several pairs has no single pair's Γ map, kernel or weights):
+// inputs.result's fits, bands, covered ranges and verdicts; the title names inputs.pair's camera.
+void writeCalibrationCurveFigure(const std::filesystem::path& path, const CalibrationFigureInputs& inputs);
+
 // Writes the four pictures into `directory` (atomically, one by one).
 void writeCalibrationFigures(const std::filesystem::path& directory, const CalibrationFigureInputs& inputs);
 

@@ -1,0 +1,75 @@
+#pragma once
+// Several pairs of one camera calibrated jointly (issue 19; `crfcal calibrate --pair S1 B1 --pair S2 B2 …`):
+// each pair goes through the single-pair pipeline (pair_calibration.hpp: registration, kernel, kernel↔φ rounds,
+// r from its images combined with EXIF, its own verdict), then one φ per channel is fitted to all pairs' data at
+// once (joint_crf_fit.hpp), each pair with its own kernel and its own r held at the pair's final single-pair r. The
+// pairs' covered ranges add up: the joint curve is data wherever any pair has data, and the scale φ(1) = 1 is
+// extrapolated from the top of the union.
+//   Options → Summary: calibrateJointly(pair results, options) → JointCalibrationResult.
+// The band (curve_band.hpp) is the single pair's, with the half-samples drawn in every pair at once (each pair's
+// blocks halved, complementary pairs of replicates), over the union's envelope; the verdict per channel is
+// channel_verdict's on the joint curve and the union's range, at least "weak" when a pair's own verdict was not ok
+// (its r, held in the joint fit, is then in doubt).
+// Pure computation: no file I/O, no printing.
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "crfcal/channel_verdict.hpp"
+#include "crfcal/crf_fitter.hpp"
+#include "crfcal/curve_band.hpp"
+#include "crfcal/pair_calibration.hpp"
+
+namespace crfcal {
+
+struct JointCalibrationOptions {
+  // The model of the joint φ and its priors: the single pair's defaults (PairCalibrationOptions::fit), so that the
+  // joint and the single fits differ only in their data. Its ratio settings are ignored: each pair's r is held.
+  CrfFitOptions model = PairCalibrationOptions{}.fit;
+  // Where each pair's held r comes from: its final single-pair r (pair_fit: the images combined with EXIF,
+  // ratio_evidence.hpp) or its nominal ratio (EXIF or --ratio).
+  enum class RatioSource { pair_fit, nominal };
+  RatioSource ratio_source = RatioSource::pair_fit;
+  CurveBandOptions band;   // the joint band (replicates = 0: none)
+  // The band's replicates also draw each pair's held r from its uncertainty: log r + z·σ, z ~ N(0, 1) (antithetic
+  // in each complementary pair of replicates), σ the pair's ratio evidence σ (RatioEvidence::log_sigma; EXIF's
+  // nominal σ when the evidence was not combined or r is the nominal one). The half-samples alone see only the
+  // images' sampling error, not the error of the r the joint fit holds, which biases φ along φ^γ, r^γ.
+  // false: r as held in every replicate.
+  bool band_varies_ratio = true;
+  VerdictOptions verdict;  // the joint verdict's thresholds
+  void check() const;      // throws InvalidInput
+};
+
+// What the joint fit took from one pair, and what it says about it.
+struct JointPairSummary {
+  std::map<std::string, double> ratio;               // per channel: r held (the pair's final single-pair r)
+  std::map<std::string, double> ratio_at_joint_phi;  // per channel: the pair's least-squares r at the joint φ
+  std::map<std::string, std::pair<double, double>> covered_range;  // per channel: the pair's own covered range
+  std::map<std::string, long long> pixels_used;      // per channel, in the joint fit
+  std::map<std::string, VerdictLevel> verdict;       // per channel: the pair's own verdict
+  // Per channel, with a band: the fraction of the pair's own φ samples over its own covered range that lie inside
+  // the joint band [lower, upper] (issue 19: the joint band should contain each single pair's "ok" curve there).
+  std::map<std::string, double> own_curve_inside_band;
+};
+
+struct JointCalibrationResult {
+  std::vector<std::string> channels;                 // fitted in every pair ("R","G","B" or "G")
+  std::map<std::string, CrfFitResult> fits;          // the joint φ per channel (ratio 1: the pairs' r are below)
+  std::vector<JointPairSummary> pairs;
+  std::map<std::string, std::pair<double, double>> covered_range;  // per channel: the envelope of the pairs' ranges
+  std::map<std::string, CurveBand> bands;            // per channel (empty when options.band.replicates = 0)
+  std::map<std::string, ChannelVerdict> verdicts;
+  std::vector<std::string> warnings;
+  std::map<std::string, double> timings;             // seconds: "joint_fit", "joint_band"
+  std::string summary() const;
+};
+
+// `pairs`: results of calibratePair with options.keep_fit_inputs (at least two). Throws InvalidInput for fewer than
+// two pairs, a pair without its fit inputs, no channel common to all pairs, or a joint fit the fitter refuses
+// (the message names the pair: "pair N: …").
+JointCalibrationResult calibrateJointly(const std::vector<PairCalibrationResult>& pairs,
+                                        const JointCalibrationOptions& options = {});
+
+}  // namespace crfcal

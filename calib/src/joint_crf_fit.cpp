@@ -1,0 +1,178 @@
+// One φ from several pairs (joint_crf_fit.hpp): each pair's moment problem built as fitInverseCrf builds it, the
+// rows stacked with r_p folded into Ĥ (r held), then the fitter's own candidates and choice at r = 1.
+#include "crfcal/joint_crf_fit.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <deque>
+#include <sstream>
+
+#include "crf_model_selection.hpp"
+#include "crf_objective.hpp"
+#include "crf_preparation.hpp"
+#include "crfcal/error.hpp"
+#include "crfcal/ggcm.hpp"
+
+namespace crfcal {
+namespace {
+
+using namespace crf_fit;
+
+// Appends pair p's sums to the stacked moments: Ĥ = r_p H (the level operator of its noise handling applied
+// first, as MomentProblem::system would), N and the counts as they are.
+void appendMoments(const MomentProblem& pair, double ratio, MomentProblem& joint) {
+  const Moments& m = pair.moments;
+  Moments& j = joint.moments;
+  const int rows = j.bins + m.bins;
+  for (int f = 0; f < 2; ++f) {
+    Eigen::MatrixXd h = pair.level_operator ? Eigen::MatrixXd(m.h[f] * (*pair.level_operator)) : m.h[f];
+    auto stack = [&](Eigen::MatrixXd& into, const Eigen::MatrixXd& add) {
+      Eigen::MatrixXd out(rows, m.levels);
+      if (j.bins > 0) out.topRows(j.bins) = into;
+      out.bottomRows(m.bins) = add;
+      into = std::move(out);
+    };
+    stack(j.h[f], ratio * h);
+    stack(j.n[f], m.n[f]);
+    stack(j.q[f], ratio * ratio * m.q[f]);
+    Eigen::VectorXd c(rows);
+    if (j.bins > 0) c.head(j.bins) = j.count[f];
+    c.tail(m.bins) = m.count[f];
+    j.count[f] = std::move(c);
+  }
+  j.levels = m.levels;
+  j.bins = rows;
+  joint.bin_level_bin.insert(joint.bin_level_bin.end(), pair.bin_level_bin.begin(), pair.bin_level_bin.end());
+  Eigen::VectorXd omega(rows);
+  if (joint.omega.size() > 0) omega.head(joint.omega.size()) = joint.omega;
+  omega.tail(m.bins) = pair.omega;
+  joint.omega = std::move(omega);
+}
+
+// The least-squares r of one pair's rows at φ (f on its level grid): min_r Σ_k ((r a_k − b_k) / s_k)².
+double ratioAt(const MomentSystem& sys, const std::vector<double>& f) {
+  const int L = sys.levels();
+  Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
+  const Eigen::VectorXd a = sys.h * fv, b = sys.n * fv;
+  double num = 0, den = 0;
+  for (int i = 0; i < static_cast<int>(a.size()); ++i) {
+    const double slope = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
+    if (!(slope > 1e-9)) continue;
+    num += a[i] * b[i] / (slope * slope);
+    den += a[i] * a[i] / (slope * slope);
+  }
+  return den > 0 ? num / den : 0.0;
+}
+
+}  // namespace
+
+void JointCrfFitOptions::check() const {
+  model.check();
+  if (model.experimental.objective != CrfObjective::moments)
+    throw InvalidInput("joint fit: only the moments objective can fit several pairs jointly");
+}
+
+std::string JointCrfFitResult::summary() const {
+  std::ostringstream s;
+  s.setf(std::ios::fixed);
+  s.precision(4);
+  s << "joint phi: " << describe(fit.model) << " (" << fit.chosen << ", " << fit.choice_reason << ")";
+  for (std::size_t p = 0; p < ratios.size(); ++p)
+    s << "\n  pair " << p + 1 << ": r " << ratios[p] << " (held; at the joint phi " << ratios_at_joint_phi[p]
+      << "), levels " << covered_levels[p].first << "-" << covered_levels[p].second << ", " << pixels[p].used
+      << " pixels, energy " << energies[p];
+  return s.str();
+}
+
+JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, const JointCrfFitOptions& options) {
+  options.check();
+  if (pairs.empty()) throw InvalidInput("joint fit: no pairs");
+  const auto start = std::chrono::steady_clock::now();
+  const int threads = options.model.threads > 0 ? options.model.threads : std::max(1, cv::getNumThreads());
+  JointCrfFitResult out;
+  std::deque<NoiseOperators> noise;  // the problems point into them
+  std::vector<MomentProblem> problems;
+  MomentProblem joint;
+  joint.omega.resize(0);
+  for (std::size_t p = 0; p < pairs.size(); ++p) {
+    const JointFitPair& pair = pairs[p];
+    const std::string name = "pair " + std::to_string(p + 1) + ": ";
+    if (!(pair.ratio > 0) || !std::isfinite(pair.ratio)) throw InvalidInput(name + "its exposure ratio must be positive");
+    CrfFitOptions o = pair.options;
+    o.experimental.objective = CrfObjective::moments;
+    o.level_bins = options.model.level_bins;  // one bin grid for the stacked rows (MomentProblem::system)
+    o.progress = nullptr;
+    CrfFitResult pair_result;
+    try {
+      o.check();
+      const Prepared prep = preparePair(pair.sharp, pair.blurred, pair.kernel, o, pair_result);
+      noise.push_back(makeNoiseOperators(prep, o));
+      problems.push_back(buildMomentProblem(prep, noise.back(), o, threads, pair_result));
+    } catch (const InvalidInput& e) {
+      throw InvalidInput(name + e.reason(), e.subject());
+    }
+    if (p > 0 && problems.back().moments.levels != problems.front().moments.levels)
+      throw InvalidInput(name + "its level grid (" + std::to_string(problems.back().moments.levels) +
+                         " levels) differs from pair 1's (" + std::to_string(problems.front().moments.levels) +
+                         "): fit pairs of one bit depth together");
+    appendMoments(problems.back(), pair.ratio, joint);
+    out.ratios.push_back(pair.ratio);
+    out.covered_levels.push_back(problems.back().covered_levels);
+    out.pixels.push_back(pair_result.pixels);
+    out.fit.mixture_nonzeros += pair_result.mixture_nonzeros;
+    if (p == 0) {
+      out.fit.levels = pair_result.levels;
+      out.fit.noise_sigma = pair_result.noise_sigma;
+      out.fit.noise_sigma_estimated = pair_result.noise_sigma_estimated;
+    }
+  }
+  joint.level_bins = options.model.level_bins;
+  joint.level_operator = nullptr;  // applied per pair in appendMoments
+  std::pair<int, int> covered = out.covered_levels.front();
+  for (const auto& c : out.covered_levels) covered = {std::min(covered.first, c.first), std::max(covered.second, c.second)};
+  joint.covered_levels = covered;
+
+  // r held: the rows already carry r_p, so the fitter's candidates run at r = 1 without a ratio prior.
+  CrfFitOptions model = options.model;
+  model.fit_ratio = false;
+  model.nominal_ratio = 1.0;
+  model.ratio_prior_sigma = 0;
+  model.experimental.variance_correction = false;  // the CUE variances assume one pair's noise operator
+  CrfFitResult& result = out.fit;
+  result.nominal_ratio = 1.0;
+  result.objective = CrfObjective::moments;
+  result.optimizer = model.experimental.optimizer;
+  result.covered_levels = covered;
+  int nonempty = 0;
+  for (int k = 0; k < joint.moments.bins; ++k) nonempty += (joint.moments.count[0][k] + joint.moments.count[1][k]) > 0;
+  result.moment_bins = nonempty;
+  for (const auto& px : out.pixels) result.pixels.used += px.used, result.pixels.total += px.total;
+  const auto t_opt = std::chrono::steady_clock::now();
+  MomentSystem full;
+  std::vector<CrfCandidate> candidates =
+      momentCandidates(joint, noise.front(), model, result, [&](double f, const std::string& stage) {
+        if (model.progress) model.progress(f, stage);
+      }, full);
+  result.timings.optimise_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_opt).count();
+  chooseCandidate(candidates, model, result);
+  result.candidates = std::move(candidates);
+  result.inverse_crf = sampleValidTable(result.model);
+  if (!checkValidity(TableModel{result.inverse_crf}, kCurveSamples, 1e-6)) {
+    result.model = ggcm::fromGamma(2.2, model.ggcm_degree);
+    result.inverse_crf = sampleValidTable(result.model);
+    result.chosen = "fallback";
+    result.choice_reason = "the chosen curve failed validation; returned the gamma 2.2 start";
+  }
+  result.ratio = 1.0;
+  for (const MomentProblem& problem : problems) {
+    const MomentSystem sys = problem.system(-1);
+    const std::vector<double> f = onLevelGrid(result.inverse_crf, sys.levels());
+    out.ratios_at_joint_phi.push_back(ratioAt(sys, f));
+    out.energies.push_back(momentEnergy(sys, f, out.ratios[out.energies.size()]));
+  }
+  result.timings.total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return out;
+}
+
+}  // namespace crfcal

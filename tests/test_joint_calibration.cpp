@@ -1,0 +1,186 @@
+// Several pairs of one camera fitted jointly (joint_crf_fit.hpp, joint_calibration.hpp; issue 19): the covered
+// ranges add up, the pairs' r are held, bad input is refused naming the pair.
+#include <algorithm>
+#include <cmath>
+#include <iostream>
+#include <vector>
+
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "crfcal/error.hpp"
+#include "crfcal/io/pair_manifest.hpp"
+#include "crfcal/joint_calibration.hpp"
+#include "crfcal/joint_crf_fit.hpp"
+#include "crfcal/response_model.hpp"
+#include "crfcal/simulation.hpp"
+#include "test_support.hpp"
+
+namespace crfcal {
+namespace {
+
+// A curve with a shoulder, so that extrapolating from a pair's own top is not enough.
+const GgcmModel kTruth{{0.42, 0.15, -0.08, 0.05, 0.02}};
+
+// A pair whose sharp intensities span [lo, hi] (the Levin image rescaled), blurred by Levin kernel `k` with ratio r.
+struct RangePair {
+  SimulationResult pair;
+  cv::Mat kernel;
+  double ratio;
+  RangePair(int image, int k, double lo, double hi, double r, std::uint64_t seed) : kernel(test::levinKernel(k)), ratio(r) {
+    SimulationOptions sim;
+    sim.ratio = r;
+    sim.noise_variance = 0.0004;
+    sim.image_is_irradiance = false;
+    sim.seed = seed;
+    pair = simulatePair(lo + (hi - lo) * test::levinImage(image), kTruth, kernel, sim);
+  }
+  JointFitPair input() const { return {pair.sharp, pair.blurred, kernel, CrfFitOptions{}, ratio}; }
+};
+
+// RMSE of a against b over x in [lo, hi]; shape: after a's best common scale onto b there (φ → sφ leaves Eq. 4
+// unchanged, so inside the data only the shape is measured; the scale is extrapolated from the top of the data).
+double rmseOver(const std::vector<double>& a, const std::vector<double>& b, double lo, double hi, bool shape = false) {
+  double num = 0, den = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    const double x = double(i) / (a.size() - 1);
+    if (x >= lo && x <= hi) num += a[i] * b[i], den += a[i] * a[i];
+  }
+  const double s = shape && den > 0 ? num / den : 1.0;
+  double sum = 0;
+  int n = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    const double x = double(i) / (a.size() - 1);
+    if (x < lo || x > hi) continue;
+    sum += (s * a[i] - b[i]) * (s * a[i] - b[i]);
+    ++n;
+  }
+  return std::sqrt(sum / std::max(n, 1));
+}
+
+TEST(JointFit, TwoPairsWithDifferentRangesBeatEachPairOverTheUnion) {
+  const RangePair dark(1, 2, 0.04, 0.45, 2.0, 3), bright(3, 4, 0.35, 0.97, 1.0, 4);
+  const std::vector<double> truth = sampleInverse(kTruth);
+  CrfFitOptions single;
+  single.nominal_ratio = 2.0;
+  const CrfFitResult a = fitInverseCrf(dark.pair.sharp, dark.pair.blurred, dark.kernel, single);
+  single.nominal_ratio = 1.0;
+  const CrfFitResult b = fitInverseCrf(bright.pair.sharp, bright.pair.blurred, bright.kernel, single);
+  const JointCrfFitResult joint = fitInverseCrfJointly({dark.input(), bright.input()});
+  const double lo = std::min(a.covered_levels.first, b.covered_levels.first) / 255.0;
+  const double hi = std::max(a.covered_levels.second, b.covered_levels.second) / 255.0;
+  const double e_joint = rmseOver(joint.fit.inverse_crf, truth, lo, hi);
+  const double e_a = rmseOver(a.inverse_crf, truth, lo, hi), e_b = rmseOver(b.inverse_crf, truth, lo, hi);
+  const double s_joint = rmseOver(joint.fit.inverse_crf, truth, lo, hi, true);
+  const double s_a = rmseOver(a.inverse_crf, truth, lo, hi, true), s_b = rmseOver(b.inverse_crf, truth, lo, hi, true);
+  const std::string numbers = joint.summary() + "\nRMSE over the union: joint " + std::to_string(e_joint) + ", dark " +
+                              std::to_string(e_a) + ", bright " + std::to_string(e_b) + "; shape: joint " +
+                              std::to_string(s_joint) + ", dark " + std::to_string(s_a) + ", bright " +
+                              std::to_string(s_b);
+  EXPECT_LT(e_joint, std::min(e_a, e_b)) << numbers;
+  EXPECT_LT(s_joint, std::min(s_a, s_b)) << numbers;
+  EXPECT_LT(s_joint, 0.01) << numbers;
+  std::cout << numbers << "\n";
+  EXPECT_EQ(joint.fit.covered_levels.first, std::min(joint.covered_levels[0].first, joint.covered_levels[1].first));
+  EXPECT_EQ(joint.fit.covered_levels.second, std::max(joint.covered_levels[0].second, joint.covered_levels[1].second));
+  // r held; at the joint φ each pair's own rows still say its r
+  EXPECT_DOUBLE_EQ(joint.ratios[0], 2.0);
+  EXPECT_NEAR(joint.ratios_at_joint_phi[0], 2.0, 0.1);
+  EXPECT_NEAR(joint.ratios_at_joint_phi[1], 1.0, 0.05);
+}
+
+TEST(JointFit, RefusesABadPairNamingIt) {
+  const RangePair good(1, 2, 0.1, 0.9, 1.0, 3);
+  JointFitPair flat = good.input();
+  flat.sharp = cv::Mat(good.pair.sharp.size(), CV_64F, cv::Scalar(0.5));
+  flat.blurred = flat.sharp.clone();
+  try {
+    fitInverseCrfJointly({good.input(), flat});
+    FAIL() << "a pair without edges was accepted";
+  } catch (const InvalidInput& e) {
+    EXPECT_EQ(std::string(e.reason()).rfind("pair 2: ", 0), 0u) << e.reason();
+  }
+  EXPECT_THROW(fitInverseCrfJointly({}), InvalidInput);
+  JointFitPair wrong_ratio = good.input();
+  wrong_ratio.ratio = 0;
+  EXPECT_THROW(fitInverseCrfJointly({good.input(), wrong_ratio}), InvalidInput);
+}
+
+TEST(JointCalibration, NeedsTwoPairsWithTheirFitInputs) {
+  EXPECT_THROW(calibrateJointly({PairCalibrationResult{}}), InvalidInput);
+  EXPECT_THROW(calibrateJointly({PairCalibrationResult{}, PairCalibrationResult{}}), InvalidInput);
+}
+
+namespace fs = std::filesystem;
+
+std::string bin() { return test::crfcalBinary().string(); }
+
+TEST(PairManifest, ReadsPairsRelativeToTheManifestSkippingCommentsAndHeader) {
+  test::TempDir dir;
+  fs::create_directories(dir / "sub");
+  std::ofstream(dir / "sub" / "pairs.csv") << "sharp,blurred\n# the first pair\na.jpg,b.jpg\n\n"
+                                              "\"c d.jpg\" /abs/e.jpg\n";
+  const auto pairs = io::readPairManifest(dir / "sub" / "pairs.csv");
+  ASSERT_EQ(pairs.size(), 2u);
+  EXPECT_EQ(pairs[0].first, dir / "sub" / "a.jpg");
+  EXPECT_EQ(pairs[0].second, dir / "sub" / "b.jpg");
+  EXPECT_EQ(pairs[1].first, dir / "sub" / "c d.jpg");
+  EXPECT_EQ(pairs[1].second, fs::path("/abs/e.jpg"));
+  std::ofstream(dir / "bad.txt") << "a.jpg b.jpg\nonly_one.jpg\n";
+  try {
+    io::readPairManifest(dir / "bad.txt");
+    FAIL() << "a line with one path was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.txt:2"), std::string::npos) << e.what();
+  }
+  std::ofstream(dir / "empty.txt") << "# nothing\n";
+  EXPECT_THROW(io::readPairManifest(dir / "empty.txt"), Error);
+}
+
+TEST(CalibrateJointCli, RefusesAMissingPairFileWithOneLineAndWritesNothing) {
+  test::TempDir dir;
+  const fs::path pairs = test::samples() / "pairs";
+  const auto r = test::run(bin() + " calibrate -q --pair " + (pairs / "sharp.jpg").string() + " " +
+                           (pairs / "blurred.jpg").string() + " --pair " + (pairs / "sharp.jpg").string() +
+                           " /nonexistent/b2.jpg -o " + (dir / "out").string());
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("crfcal: error: /nonexistent/b2.jpg: no such file"), std::string::npos) << r.output;
+  EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "out"));
+  // one pair is not a joint calibration; --ratio names one pair's data
+  const std::string one = " --pair " + (pairs / "sharp.jpg").string() + " " + (pairs / "blurred.jpg").string();
+  EXPECT_EQ(test::run(bin() + " calibrate -q" + one + " -o " + (dir / "out").string()).exit_code, 1);
+  EXPECT_EQ(test::run(bin() + " calibrate -q" + one + one + " --ratio 2 -o " + (dir / "out").string()).exit_code, 1);
+  EXPECT_FALSE(fs::exists(dir / "out"));
+}
+
+// The bundled pair twice through a manifest (plumbing, not accuracy): one φ per channel, both pairs in report.json.
+TEST(CalibrateJointCli, ManifestRunWritesTheJointReport) {
+  test::TempDir dir;
+  const fs::path pairs = test::samples() / "pairs";
+  std::ofstream(dir / "pairs.txt") << (pairs / "sharp.jpg").string() << " " << (pairs / "blurred.jpg").string() << "\n"
+                                   << (pairs / "sharp.jpg").string() << " " << (pairs / "blurred.jpg").string() << "\n";
+  const auto r = test::run(bin() + " calibrate -q --pairs " + (dir / "pairs.txt").string() +
+                           " --channels g --rounds 1 --no-effects --band-replicates 2 -o " + (dir / "out").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream in(dir / "out" / "report.json");
+  const nlohmann::json report = nlohmann::json::parse(in);
+  EXPECT_EQ(report["inverse_crf"]["G"].size(), 1024u);
+  ASSERT_EQ(report["joint"]["pairs"].size(), 2u);
+  EXPECT_TRUE(report["joint"]["pairs"][0]["report"].contains("inverse_crf"));
+  EXPECT_EQ(report["inverse_crf_band"]["G"]["lower"].size(), 1024u);
+  EXPECT_TRUE(report["verdict"].contains("G"));
+  EXPECT_TRUE(fs::exists(dir / "out" / "curve.png"));
+  EXPECT_TRUE(fs::exists(dir / "out" / "kernel_2.txt"));
+  // the same pair twice: the joint φ is that pair's φ, up to the fitter's tolerance
+  const auto& own = report["joint"]["pairs"][0]["report"]["inverse_crf"]["G"];
+  double worst = 0;
+  for (int i = 0; i < 1024; ++i) worst = std::max(worst, std::abs(double(own[i]) - double(report["inverse_crf"]["G"][i])));
+  EXPECT_LT(worst, 0.01);
+}
+
+}  // namespace
+}  // namespace crfcal
