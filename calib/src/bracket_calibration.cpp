@@ -1,6 +1,7 @@
 #include "crfcal/bracket_calibration.hpp"
 
 #include <algorithm>
+#include <exception>
 #include <cstdio>
 #include <limits>
 #include <cmath>
@@ -84,32 +85,49 @@ AlignedBracket alignFrames(const std::vector<BracketFrame>& frames, int referenc
     const cv::Rect inner(margin, margin, ref.cols - 2 * margin, ref.rows - 2 * margin);
     if (inner.width > 0 && inner.height > 0) aligned.valid(inner).setTo(255);
   }
-  for (size_t j = 0; j < frames.size(); ++j) {
-    const BracketFrame& frame = frames[j];
+  for (const BracketFrame& frame : frames) {
     if (frame.image.channels() != ref.channels())
       throw InvalidInput("has " + std::to_string(frame.image.channels()) + " channels, " +
                              frames[static_cast<size_t>(reference)].name + " has " + std::to_string(ref.channels()),
                          ErrorSubject::pair, frame.name);
-    if (int(j) == reference) {
-      aligned.images.push_back(unitFloat(frame.image));
-      continue;
-    }
-    if (!options.register_frames) {
-      if (frame.image.size() != ref.size())
-        throw InvalidInput("differs in size from " + frames[static_cast<size_t>(reference)].name +
-                               " (unregistered frames must have the same size)",
-                           ErrorSubject::pair, frame.name);
-      aligned.images.push_back(unitFloat(frame.image));
-      continue;
-    }
-    RegistrationResult registration;
-    try {
-      registration = registerPair(frame.image, ref, options.registration);
-    } catch (const InvalidInput& e) {
-      throw InvalidInput("not the same scene as " + frames[static_cast<size_t>(reference)].name + " (" + e.reason() + ")",
+    if (!options.register_frames && frame.image.size() != ref.size())
+      throw InvalidInput("differs in size from " + frames[static_cast<size_t>(reference)].name +
+                             " (unregistered frames must have the same size)",
                          ErrorSubject::pair, frame.name);
+  }
+  // Each frame is registered onto the reference independently: one per core (a failure is reported for the first
+  // failing frame in order, as a serial loop would).
+  const int n = static_cast<int>(frames.size());
+  std::vector<std::exception_ptr> errors(static_cast<size_t>(n));
+  if (options.register_frames) {
+    cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
+      for (int j = range.start; j < range.end; ++j) {
+        if (j == reference) continue;
+        try {
+          results[static_cast<size_t>(j)].registration =
+              registerPair(frames[static_cast<size_t>(j)].image, ref, options.registration);
+        } catch (...) {
+          errors[static_cast<size_t>(j)] = std::current_exception();
+        }
+      }
+    });
+  }
+  for (int j = 0; j < n; ++j) {
+    const BracketFrame& frame = frames[static_cast<size_t>(j)];
+    if (j == reference || !options.register_frames) {
+      aligned.images.push_back(unitFloat(frame.image));
+      continue;
     }
-    results[j].registration = registration;
+    if (errors[static_cast<size_t>(j)]) {
+      try {
+        std::rethrow_exception(errors[static_cast<size_t>(j)]);
+      } catch (const InvalidInput& e) {
+        throw InvalidInput("not the same scene as " + frames[static_cast<size_t>(reference)].name + " (" + e.reason() +
+                               ")",
+                           ErrorSubject::pair, frame.name);
+      }
+    }
+    const RegistrationResult& registration = results[static_cast<size_t>(j)].registration;
     aligned.images.push_back(unitFloat(warpToBlurred(frame.image, registration.homography, ref.size())));
     aligned.valid &= overlapMask(frame.image.size(), registration.homography, ref.size(), std::max(margin, 1));
     if (progress) progress("register", double(j + 1) / double(frames.size()), frame.name);
