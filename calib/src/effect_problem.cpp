@@ -252,63 +252,51 @@ Eigen::VectorXd Problem::linearStart(const Samples& s, const Spec& spec, const s
 // Levenberg–Marquardt on r_i = w_i(θ) (t_i − c_i·θ): w depends on the φ re-fit through φ'(B).
 void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
                                  Eigen::VectorXd& theta) const {
-  double buffer[48], t;
   const int cols = static_cast<int>(theta.size());
   const int terms = static_cast<int>(s.Dh.size());
-  auto cost = [&](const Eigen::VectorXd& th) {
-    double sum = 0;
-    for (auto i : use) {
-      row(s, i, spec, buffer, t);
-      double pr = 0;
-      for (int a = 0; a < cols; ++a) pr += th(a) * buffer[a];
-      const double r = weight(s, i, &th) * (t - pr);
-      sum += r * r;
-    }
-    return sum;
+  const Eigen::Index n = static_cast<Eigen::Index>(use.size()), first = cols - terms;
+  // The design rows c_i, the targets t_i, φ̂'(B) and the φ terms' derivatives do not depend on θ: gathered once,
+  // so that every pass below is a few matrix products (the search runs hundreds of these fits per pair).
+  Eigen::MatrixXd C(n, cols), Dh(n, terms);
+  Eigen::VectorXd target(n), d0(n);
+  double buffer[48];
+  for (Eigen::Index k = 0; k < n; ++k) {
+    const std::size_t i = use[static_cast<std::size_t>(k)];
+    double t = 0;
+    row(s, i, spec, buffer, t);
+    for (int a = 0; a < cols; ++a) C(k, a) = buffer[a];
+    target(k) = t;
+    d0(k) = s.d[i];
+    for (int j = 0; j < terms; ++j) Dh(k, j) = s.Dh[static_cast<std::size_t>(j)][i];
+  }
+  // r = w (t − Cθ) with w = 1 / max(φ̂'(B) + Σ α_k h_k'(B), min_derivative) (weight()).
+  Eigen::VectorXd d(n), w(n), r(n);
+  const auto residuals = [&](const Eigen::VectorXd& th) {
+    d.noalias() = d0 + Dh * th.tail(terms);
+    w = d.cwiseMax(min_derivative_).cwiseInverse();
+    r = w.cwiseProduct(target - C * th);
+    return r.squaredNorm();
   };
-  double mu = 1e-3, current = cost(theta);
-  // The Jacobian's rows are gathered in blocks and JᵀJ, Jᵀr formed per block (one rank-k update instead of a rank-1
-  // update per sample: the search's fits spend most of their time here).
-  constexpr int kBlockRows = 256;
-  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> Jb(kBlockRows, cols);
-  Eigen::VectorXd rb(kBlockRows);
+  double mu = 1e-3, current = residuals(theta);
+  Eigen::MatrixXd J(n, cols);
   for (int iteration = 0; iteration < 40; ++iteration) {
+    // J = ∂r/∂θ: −w c_i, and through w the φ terms' −r w h_k'(B) where the derivative is not floored.
+    const Eigen::VectorXd unfloored = (d.array() >= min_derivative_).cast<double>().matrix();
+    J.noalias() = -(w.asDiagonal() * C);
+    J.rightCols(terms).noalias() -= (r.cwiseProduct(w).cwiseProduct(unfloored)).asDiagonal() * Dh;
     Eigen::MatrixXd JtJ = Eigen::MatrixXd::Zero(cols, cols);
-    Eigen::VectorXd Jtr = Eigen::VectorXd::Zero(cols);
-    const Eigen::Index first = cols - terms;
-    int filled = 0;
-    const auto flush = [&] {
-      if (filled == 0) return;
-      const auto J = Jb.topRows(filled);
-      JtJ.selfadjointView<Eigen::Lower>().rankUpdate(J.transpose());
-      Jtr.noalias() += J.transpose() * rb.head(filled);
-      filled = 0;
-    };
-    for (auto i : use) {
-      row(s, i, spec, buffer, t);
-      double pr = 0;
-      for (int a = 0; a < cols; ++a) pr += theta(a) * buffer[a];
-      double d = s.d[i];
-      for (int k = 0; k < terms; ++k) d += theta(first + k) * s.Dh[k][i];
-      const bool floored = d < min_derivative_;
-      const double w = 1.0 / std::max(d, min_derivative_), r = w * (t - pr);
-      double* J = Jb.row(filled).data();
-      for (int a = 0; a < cols; ++a) J[a] = -w * buffer[a];
-      if (!floored)
-        for (int k = 0; k < terms; ++k) J[first + k] -= r * w * s.Dh[k][i];
-      rb(filled) = r;
-      if (++filled == kBlockRows) flush();
-    }
-    flush();
+    JtJ.selfadjointView<Eigen::Lower>().rankUpdate(J.transpose());
     JtJ = JtJ.selfadjointView<Eigen::Lower>();
+    const Eigen::VectorXd Jtr = J.transpose() * r;
+    const Eigen::VectorXd theta_here = theta;
     bool improved = false;
     for (int attempt = 0; attempt < 6 && !improved; ++attempt) {
       Eigen::MatrixXd H = JtJ;
       H.diagonal() += mu * JtJ.diagonal().cwiseMax(1e-30);
       const Eigen::VectorXd step = H.ldlt().solve(-Jtr);
       if (!step.allFinite()) break;
-      const Eigen::VectorXd next = theta + step;
-      const double c = cost(next);
+      const Eigen::VectorXd next = theta_here + step;
+      const double c = residuals(next);  // d, w, r now at `next`: the next iteration linearises there if kept
       if (c < current) {
         improved = true;
         const double drop = (current - c) / std::max(current, 1e-300);
