@@ -60,14 +60,24 @@ void chooseFitWindow(PairCalibrationState& state) {
   }
 }
 
+namespace {
+
+// The fit options of channel `name`: the stage's, with the sharp shot's chroma error bound when it is modelled.
+CrfFitOptions channelFitOptions(const PairCalibrationState& state, const std::string& name) {
+  CrfFitOptions fo = state.fit_options;
+  if (const auto it = state.window_sharp_error.find(name); it != state.window_sharp_error.end())
+    fo.sharp_error_bound = it->second;
+  return fo;
+}
+
+}  // namespace
+
 CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& name, const cv::Mat& kernel_full) {
   // The smallest centred window holding the kernel's mass: the fitter dilates clipped regions and the frame
   // border by the kernel's window, so empty margins (the estimation window's, or a given file's) would only
   // cost pixels.
   const cv::Mat kernel = cropKernel(kernel_full, 0.0);
-  CrfFitOptions fo = state.fit_options;
-  if (const auto it = state.window_sharp_error.find(name); it != state.window_sharp_error.end())
-    fo.sharp_error_bound = it->second;
+  CrfFitOptions fo = channelFitOptions(state, name);
   fo.progress = [&state, &name](double f, const std::string& stage) { state.report("fit " + name, f, stage); };
   return fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
 }
@@ -81,12 +91,10 @@ std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, con
   cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
     for (int i = range.start; i < range.end; ++i) {
       try {
-        CrfFitOptions fo = state.fit_options;
-        if (const auto it = state.window_sharp_error.find(names[i]); it != state.window_sharp_error.end())
-          fo.sharp_error_bound = it->second;
+        CrfFitOptions fo = channelFitOptions(state, names[i]);
         fo.progress = nullptr;  // progress from the workers would interleave: the stage reports per batch
         fits[i] = fitInverseCrf(state.window_sharp.at(names[i]), state.window_blurred.at(names[i]),
-                                cropKernel(kernel, 0.0), fo);
+                                cropKernel(kernel, 0.0), fo);  // cropped as fitChannel does
       } catch (...) {
         errors[i] = std::current_exception();
       }
