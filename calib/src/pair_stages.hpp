@@ -131,8 +131,9 @@ void chooseFitWindow(PairCalibrationState& state);
 void markChromaDetail(PairCalibrationState& state, const cv::Mat& sharp_in);
 // φ of channel `name` on the fit window with `kernel` (state.fit_options).
 CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& name, const cv::Mat& kernel);
-// fitChannel for several channels at once, one per core (the fits are independent; each fit's sums do not depend
-// on the threads, so the results equal a serial loop's). A channel fitted with the chroma model (a subsampled sharp
+// fitChannel for several channels at once, one per core (the fits are independent; each splits its sums into as
+// many stripes as OpenCV has threads whether it runs beside the others or alone, so the results equal a serial
+// loop's at the same thread count). A channel fitted with the chroma model (a subsampled sharp
 // JPEG) that leaves too few pixels falls back to the pointwise model; `fallback_warnings` then gets a line (the
 // rounds stage reports it, the ratio stage does not repeat it). Any other failure is rethrown, in channel order.
 std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, const std::vector<std::string>& names,
