@@ -254,7 +254,7 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
                                  Eigen::VectorXd& theta) const {
   const int cols = static_cast<int>(theta.size());
   const int terms = static_cast<int>(s.Dh.size());
-  const Eigen::Index n = static_cast<Eigen::Index>(use.size()), first = cols - terms;
+  const Eigen::Index n = static_cast<Eigen::Index>(use.size());
   // The design rows c_i, the targets t_i, φ̂'(B) and the φ terms' derivatives do not depend on θ: gathered once,
   // so that every pass below is a few matrix products (the search runs hundreds of these fits per pair).
   Eigen::MatrixXd C(n, cols), Dh(n, terms);
@@ -288,14 +288,13 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
     JtJ.selfadjointView<Eigen::Lower>().rankUpdate(J.transpose());
     JtJ = JtJ.selfadjointView<Eigen::Lower>();
     const Eigen::VectorXd Jtr = J.transpose() * r;
-    const Eigen::VectorXd theta_here = theta;
     bool improved = false;
     for (int attempt = 0; attempt < 6 && !improved; ++attempt) {
       Eigen::MatrixXd H = JtJ;
       H.diagonal() += mu * JtJ.diagonal().cwiseMax(1e-30);
       const Eigen::VectorXd step = H.ldlt().solve(-Jtr);
       if (!step.allFinite()) break;
-      const Eigen::VectorXd next = theta_here + step;
+      const Eigen::VectorXd next = theta + step;
       const double c = residuals(next);  // d, w, r now at `next`: the next iteration linearises there if kept
       if (c < current) {
         improved = true;
