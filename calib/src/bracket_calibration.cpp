@@ -17,6 +17,7 @@
 #include "crfcal/exposure_fit.hpp"
 #include "crfcal/response_curve.hpp"
 #include "image_units.hpp"
+#include "parallel_jobs.hpp"
 
 namespace crfcal {
 
@@ -98,20 +99,11 @@ AlignedBracket alignFrames(const std::vector<BracketFrame>& frames, int referenc
   // Each frame is registered onto the reference independently: one per core (a failure is reported for the first
   // failing frame in order, as a serial loop would).
   const int n = static_cast<int>(frames.size());
-  std::vector<std::exception_ptr> errors(static_cast<size_t>(n));
-  if (options.register_frames) {
-    cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
-      for (int j = range.start; j < range.end; ++j) {
-        if (j == reference) continue;
-        try {
-          results[static_cast<size_t>(j)].registration =
-              registerPair(frames[static_cast<size_t>(j)].image, ref, options.registration);
-        } catch (...) {
-          errors[static_cast<size_t>(j)] = std::current_exception();
-        }
-      }
-    });
-  }
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(options.register_frames ? n : 0, [&](int j) {
+    if (j == reference) return;
+    const size_t k = static_cast<size_t>(j);
+    results[k].registration = registerPair(frames[k].image, ref, options.registration);
+  });
   for (int j = 0; j < n; ++j) {
     const BracketFrame& frame = frames[static_cast<size_t>(j)];
     if (j == reference || !options.register_frames) {

@@ -13,6 +13,7 @@
 
 #include "crfcal/error.hpp"
 #include "crfcal/response_model.hpp"
+#include "parallel_jobs.hpp"
 
 namespace crfcal {
 namespace {
@@ -260,19 +261,14 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
   // its sums, do not depend on that, so the band is the same as from a serial loop).
   const int n = static_cast<int>(masks.size());
   std::vector<std::optional<CrfFitResult>> fits(n);
-  std::vector<std::exception_ptr> errors(n);
-  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
-    for (int i = range.start; i < range.end; ++i) {
-      CrfFitOptions o = fit_options;
-      o.pixel_selection = masks[i];
-      o.progress = nullptr;
-      try {
-        fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
-      } catch (const InvalidInput&) {
-        // a half without enough edge pixels: the estimate rests on the others
-      } catch (...) {
-        errors[i] = std::current_exception();
-      }
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(n, [&](int i) {
+    CrfFitOptions o = fit_options;
+    o.pixel_selection = masks[i];
+    o.progress = nullptr;
+    try {
+      fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
+    } catch (const InvalidInput&) {
+      // a half without enough edge pixels: the estimate rests on the others
     }
   });
   for (int i = 0; i < n; ++i) {

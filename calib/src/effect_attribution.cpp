@@ -9,9 +9,8 @@
 #include <limits>
 #include <optional>
 
-#include <opencv2/core.hpp>
-
 #include "effect_problem.hpp"
+#include "parallel_jobs.hpp"
 
 namespace crfcal::effect {
 
@@ -23,21 +22,14 @@ std::vector<Candidate> levelCandidates(const EffectSearch& search, const Problem
   // Independent fits of the same problem: one candidate per core, kept in levelEffects() order.
   const int n = static_cast<int>(effects.size());
   std::vector<std::optional<Candidate>> out(n);
-  std::vector<std::exception_ptr> errors(n);
-  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
-    for (int i = range.start; i < range.end; ++i) {
-      try {
-        const LevelEffect& effect = *effects[i];
-        const Spec extended = effect.extend(base);
-        Candidate c{effect.name, problem.evaluate(extended, true, &base_eval), {}, false, false};
-        c.cmp = effect.test(search, base_eval, c.eval);
-        c.plausible = physical(extended, c.eval, search.nc, search.terms);
-        c.passes = c.plausible && c.cmp.gain >= search.options.min_gain && c.cmp.z >= search.options.min_z;
-        out[i] = std::move(c);
-      } catch (...) {
-        errors[i] = std::current_exception();
-      }
-    }
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(n, [&](int i) {
+    const LevelEffect& effect = *effects[i];
+    const Spec extended = effect.extend(base);
+    Candidate c{effect.name, problem.evaluate(extended, true, &base_eval), {}, false, false};
+    c.cmp = effect.test(search, base_eval, c.eval);
+    c.plausible = physical(extended, c.eval, search.nc, search.terms);
+    c.passes = c.plausible && c.cmp.gain >= search.options.min_gain && c.cmp.z >= search.options.min_z;
+    out[i] = std::move(c);
   });
   std::vector<Candidate> candidates;
   for (int i = 0; i < n; ++i) {

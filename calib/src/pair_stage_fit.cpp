@@ -13,6 +13,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
 #include "pair_stages.hpp"
+#include "parallel_jobs.hpp"
 
 namespace crfcal::detail {
 
@@ -86,19 +87,12 @@ std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, con
                                                 const cv::Mat& kernel, bool fallback_warnings) {
   const int n = static_cast<int>(names.size());
   std::vector<std::optional<CrfFitResult>> fits(n);
-  std::vector<std::exception_ptr> errors(n);
   state.report("fit", 0, n == 1 ? names[0] : std::to_string(n) + " channels");
-  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) {
-    for (int i = range.start; i < range.end; ++i) {
-      try {
-        CrfFitOptions fo = channelFitOptions(state, names[i]);
-        fo.progress = nullptr;  // progress from the workers would interleave: the stage reports per batch
-        fits[i] = fitInverseCrf(state.window_sharp.at(names[i]), state.window_blurred.at(names[i]),
-                                cropKernel(kernel, 0.0), fo);  // cropped as fitChannel does
-      } catch (...) {
-        errors[i] = std::current_exception();
-      }
-    }
+  const std::vector<std::exception_ptr> errors = runInParallel(n, [&](int i) {
+    CrfFitOptions fo = channelFitOptions(state, names[i]);
+    fo.progress = nullptr;  // progress from the workers would interleave: the stage reports per batch
+    fits[i] = fitInverseCrf(state.window_sharp.at(names[i]), state.window_blurred.at(names[i]),
+                            cropKernel(kernel, 0.0), fo);  // cropped as fitChannel does
   });
   std::map<std::string, CrfFitResult> out;
   for (int i = 0; i < n; ++i) {
