@@ -98,6 +98,42 @@ TEST(CrfFit, RecoversExactGgcmFromNoiseFreeData) {
   EXPECT_NEAR(fit.ratio, 1.0, 0.01);
 }
 
+// CrfFitOptions::start (the curve band's half-sample refits): a fit started from the whole pair's fit alone ends
+// where the usual multi-start fit ends, on the whole pair and on a half of it; a start of the other model's kind
+// is ignored (that model keeps its usual starts).
+TEST(CrfFit, StartFromAFitReachesTheMultiStartOptimum) {
+  SimulationOptions sim;
+  sim.noise_variance = 0.0002;
+  sim.ratio = 1.5;
+  const SimulationResult pair = simulatePair(test::levinImage(2), kTrueGgcm, test::levinKernel(3), sim);
+  CrfFitOptions options;
+  options.model = CrfModelChoice::ggcm;
+  options.nominal_ratio = 1.5;
+  const CrfFitResult whole = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(3), options);
+  ASSERT_EQ(whole.chosen, "ggcm");
+  cv::Mat half = cv::Mat::zeros(pair.sharp.size(), CV_8U);
+  half(cv::Rect(0, 0, half.cols / 2, half.rows)).setTo(255);
+  for (const cv::Mat& selection : {cv::Mat(), half}) {
+    CrfFitOptions usual = options;
+    usual.pixel_selection = selection;
+    CrfFitOptions started = usual;
+    started.start = CrfFitOptions::Start{whole.model, whole.ratio};
+    const CrfFitResult a = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(3), usual);
+    const CrfFitResult b = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(3), started);
+    EXPECT_LT(curveRmse(a.model, b.model), 1e-4) << a.summary() << "\n" << b.summary();
+    EXPECT_NEAR(a.ratio, b.ratio, 1e-3 * a.ratio);
+    EXPECT_LT(b.evaluations, a.evaluations);  // fewer LM runs
+  }
+  CrfFitOptions other_kind = options;
+  other_kind.start = CrfFitOptions::Start{EmorModel{std::vector<double>(options.emor_terms, 0.0)}, 1.5};
+  const CrfFitResult c = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(3), other_kind);
+  EXPECT_EQ(c.evaluations, whole.evaluations);
+  EXPECT_EQ(c.inverse_crf, whole.inverse_crf);
+  CrfFitOptions bad = options;
+  bad.start = CrfFitOptions::Start{whole.model, 0.0};
+  EXPECT_THROW(bad.check(), InvalidInput);
+}
+
 TEST(CrfFit, SeedMethodRecoversNoiseFreeGgcm) {
   const SimulationResult pair = simulatePair(test::levinImage(2), kTrueGgcm, test::levinKernel(3));
   const CrfFitResult fit = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(3), CrfFitOptions::seed());

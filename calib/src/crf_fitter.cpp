@@ -97,6 +97,8 @@ void CrfFitOptions::check() const {
   if (min_pixels < 1) throw InvalidInput("fit options: min_pixels must be positive");
   if (max_pixels < 0) throw InvalidInput("fit options: max_pixels must be >= 0");
   if (threads < 0) throw InvalidInput("fit options: threads must be >= 0");
+  if (start && (!(start->ratio > 0) || !std::isfinite(start->ratio)))
+    throw InvalidInput("fit options: start.ratio must be positive");
 }
 
 std::string CrfFitResult::summary() const {

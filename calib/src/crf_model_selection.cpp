@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <variant>
 
 #include "crf_curve.hpp"
 #include "crf_optimisation.hpp"
@@ -40,6 +41,18 @@ struct MomentFitter {
         emor_curve(Curve::kEmor, p.moments.levels, o.emor_terms),
         lm_iterations(std::max(20, o.max_evaluations / 10)) {}
 
+  // The start's parameters when it is a fit of this curve's kind and size and `model` names that kind
+  // (CrfFitOptions::start), else empty.
+  std::vector<double> startParameters(const Curve& curve) const {
+    const CrfModelChoice kind = curve.kind() == Curve::kGgcm ? CrfModelChoice::ggcm : CrfModelChoice::emor;
+    if (!options.start || options.model != kind) return {};
+    std::vector<double> x;
+    if (const auto* g = std::get_if<GgcmModel>(&options.start->model); g && curve.kind() == Curve::kGgcm) x = g->alpha;
+    if (const auto* e = std::get_if<EmorModel>(&options.start->model); e && curve.kind() == Curve::kEmor)
+      x = e->coefficients;
+    return static_cast<int>(x.size()) == curve.dims() ? x : std::vector<double>{};
+  }
+
   ModelFit fitWithPriors(const Curve& curve, const MomentSystem& sys, std::vector<std::vector<double>> starts,
                          double r0) const {
     return fitModelMomentsWithPrior(curve, sys, std::move(starts), r0, options.fit_ratio, lm_iterations,
@@ -49,7 +62,13 @@ struct MomentFitter {
   // EMoR from its linear least-squares start. With the ratio prior: first what the images alone say, then the
   // same fit with the prior (every later fit, the cross-validation's too, carries it).
   ModelFit fitEmor(MomentSystem& full) {
-    ModelFit fit_e = fitWithPriors(emor_curve, full, {}, options.nominal_ratio);
+    std::vector<std::vector<double>> starts;  // empty: the linear least-squares starts
+    double r0 = options.nominal_ratio;
+    if (std::vector<double> x = startParameters(emor_curve); !x.empty()) {
+      starts.push_back(std::move(x));
+      r0 = options.start->ratio;
+    }
+    ModelFit fit_e = fitWithPriors(emor_curve, full, starts, r0);
     result.evaluations += fit_e.evaluations;
     result.iterations += fit_e.iterations;
     const bool ratio_prior = options.fit_ratio && options.ratio_prior_sigma > 0;
@@ -59,7 +78,7 @@ struct MomentFitter {
       residual_variance = fit_e.energy * bins / std::max(1.0, bins - emor_curve.dims() - 1);
       setRatioPrior(full, residual_variance, options);
       result.ratio_prior_scale = full.ratio_prior_scale;
-      const ModelFit with_prior = fitWithPriors(emor_curve, full, {}, options.nominal_ratio);
+      const ModelFit with_prior = fitWithPriors(emor_curve, full, starts, r0);
       result.evaluations += with_prior.evaluations;
       result.iterations += with_prior.iterations;
       if (with_prior.valid) fit_e = with_prior;
@@ -77,12 +96,18 @@ struct MomentFitter {
   }
 
   // GGCM from the EMoR projection and γ = 2.2, 1.6, 3.0, 1.0 (the first multi_starts of them).
+  // With CrfFitOptions::start of GGCM: from it alone.
   ModelFit fitGgcm(const MomentSystem& full, const ModelFit& fit_e) {
     std::vector<std::vector<double>> starts;
-    addEmorProjection(fit_e, starts);
-    for (double gamma : {2.2, 1.6, 3.0, 1.0}) starts.push_back(ggcm::fromGamma(gamma, options.ggcm_degree).alpha);
-    if (static_cast<int>(starts.size()) > options.multi_starts) starts.resize(options.multi_starts);
-    const double r_start = fit_e.valid ? fit_e.ratio : options.nominal_ratio;
+    double r_start = fit_e.valid ? fit_e.ratio : options.nominal_ratio;
+    if (std::vector<double> x = startParameters(ggcm_curve); !x.empty()) {
+      starts.push_back(std::move(x));
+      r_start = options.start->ratio;
+    } else {
+      addEmorProjection(fit_e, starts);
+      for (double gamma : {2.2, 1.6, 3.0, 1.0}) starts.push_back(ggcm::fromGamma(gamma, options.ggcm_degree).alpha);
+      if (static_cast<int>(starts.size()) > options.multi_starts) starts.resize(options.multi_starts);
+    }
     const ModelFit fit_g =
         options.experimental.optimizer == CrfOptimizer::nelder_mead
             ? fitGgcmNelderMead(ggcm_curve, full, starts, options.nominal_ratio, options.fit_ratio,
@@ -178,8 +203,11 @@ std::vector<CrfCandidate> momentCandidates(const MomentProblem& problem, const N
   MomentFitter fitter(problem, options, result);
   full = problem.system(-1);
   setExtrapolationPrior(full, options, problem.covered_levels);
-  // EMoR is fitted even for GGCM alone: its projection is GGCM's first start
-  ModelFit fit_e = fitter.fitEmor(full);
+  // EMoR is fitted even for GGCM alone (its projection is GGCM's first start; with the ratio prior, its residual
+  // variance scales the prior), unless GGCM has a start of its own and no ratio prior is asked for
+  const bool ratio_prior = options.fit_ratio && options.ratio_prior_sigma > 0;
+  const bool ggcm_started = want_ggcm && !ratio_prior && !fitter.startParameters(fitter.ggcm_curve).empty();
+  ModelFit fit_e = want_emor || !ggcm_started ? fitter.fitEmor(full) : ModelFit{};
   ModelFit fit_g;
   if (want_ggcm) fit_g = fitter.fitGgcm(full, fit_e);
   // r of the better valid fit: the start of the CUE refinement

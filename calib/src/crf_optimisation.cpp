@@ -2,10 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <exception>
 
 #include <Eigen/Cholesky>
 #include <Eigen/QR>
 #include <nlopt.hpp>
+
+#include "parallel_jobs.hpp"
 
 namespace crfcal::crf_fit {
 
@@ -128,17 +131,28 @@ double profiledRatio(const MomentSystem& sys, const std::vector<double>& f) {
 }
 
 // Levenberg–Marquardt from each non-empty start (the model's parameters, then log r when it is fitted); the lowest
-// cost wins. `evaluations_per_call`: energy evaluations one residual call costs (for the fit's counters).
+// cost wins, the earlier start on a tie. `evaluations_per_call`: energy evaluations one residual call costs (for the
+// fit's counters). The starts are independent runs of a pure residual function: one per core (inside a job that
+// already runs in parallel, e.g. a band refit, they run serially), with the result of a serial loop.
 ModelFit bestOfStarts(const Curve& curve, const std::vector<std::vector<double>>& starts, double r0, bool fit_ratio,
                       const ResidualFn& fn, int max_iterations, int evaluations_per_call) {
   const int d = curve.dims();
+  std::vector<LmResult> runs(starts.size());
+  const std::vector<std::exception_ptr> errors =
+      detail::runInParallel(static_cast<int>(starts.size()), [&](int i) {
+        const std::vector<double>& s = starts[static_cast<std::size_t>(i)];
+        if (s.empty()) return;
+        Eigen::VectorXd p(d + (fit_ratio ? 1 : 0));
+        for (int j = 0; j < d; ++j) p[j] = s[j];
+        if (fit_ratio) p[d] = std::log(r0);
+        runs[static_cast<std::size_t>(i)] = levenbergMarquardt(p, fn, max_iterations);
+      });
+  for (const auto& e : errors)
+    if (e) std::rethrow_exception(e);
   ModelFit best;
-  for (const auto& s : starts) {
-    if (s.empty()) continue;
-    Eigen::VectorXd p(d + (fit_ratio ? 1 : 0));
-    for (int j = 0; j < d; ++j) p[j] = s[j];
-    if (fit_ratio) p[d] = std::log(r0);
-    const LmResult lm = levenbergMarquardt(p, fn, max_iterations);
+  for (std::size_t i = 0; i < starts.size(); ++i) {
+    if (starts[i].empty()) continue;
+    const LmResult& lm = runs[i];
     best.evaluations += lm.evaluations * evaluations_per_call;
     best.iterations += lm.iterations;
     if (lm.cost < best.energy) {

@@ -11,6 +11,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
 #include "crfcal/noise_estimation.hpp"
+#include "noise_debias_cache.hpp"
 
 namespace crfcal::crf_fit {
 namespace {
@@ -223,7 +224,7 @@ NoiseOperators makeNoiseOperators(const Prepared& prep, const CrfFitOptions& opt
     dopt.sigma = std::min(sigma, 0.5);
     dopt.sigma_per_level = options.noise_sigma_per_level;
     dopt.regularization = options.experimental.debias_regularization;
-    ops.debias = NoiseDebias(dopt);
+    ops.debias = detail::cachedNoiseDebias(dopt);
   }
   ops.debias_active = use_debias && !ops.debias.identity();
   if (noise == NoiseHandling::jensen && !seed_objective && (sigma > 0 || !options.noise_sigma_per_level.empty()))
@@ -234,7 +235,7 @@ NoiseOperators makeNoiseOperators(const Prepared& prep, const CrfFitOptions& opt
     dopt.levels = L;
     dopt.sigma = std::min(sigma, 0.5);
     dopt.sigma_per_level = options.noise_sigma_per_level;
-    ops.noise_only = NoiseDebias(dopt);
+    ops.noise_only = detail::cachedNoiseDebias(dopt);
     ops.noise_only_active = true;
   }
   return ops;

@@ -292,6 +292,8 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
   if (options.refit_chosen_model && fit_options.model == CrfModelChoice::automatic) {
     if (fit.chosen == "ggcm") refit_options.model = CrfModelChoice::ggcm;
     else if (fit.chosen == "emor") refit_options.model = CrfModelChoice::emor;
+    if (options.refits_start_from_fit && refit_options.model != CrfModelChoice::automatic)
+      refit_options.start = CrfFitOptions::Start{fit.model, fit.ratio};
   }
   const HalfSampleRefits refits = refitOnHalfSamples(sharp, blurred, kernel, refit_options, fit.pixels.used_mask,
                                                      options.replicates, options.block_size, options.seed);

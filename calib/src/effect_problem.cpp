@@ -10,6 +10,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
 #include "crfcal/noise_estimation.hpp"
+#include "noise_debias_cache.hpp"
 
 namespace crfcal::effect {
 
@@ -86,6 +87,26 @@ std::vector<double> onLevels(std::span<const double> f, int levels) {
   return out;
 }
 
+// The noisy I: its level functions debiased (noise_debias.hpp, E[g(I) | clean c] = f(c)), so that Jensen's bias of
+// φ(I) and the clip of the noise at 0 and 1 do not pose as an effect (e.g. as an offset in the darks).
+cv::Mat blurredLevelFunction(const Prepared& p, int c, std::span<const double> f, const cv::Mat& K) {
+  std::vector<double> g = onLevels(f, p.levels[c]);
+  if (!p.debias[c].identity()) g = p.debias[c].apply(g);
+  return convolve(applyTable(p.I[c], g), K);
+}
+
+void blurBasis(Prepared& p, const cv::Mat& K, int phi_terms) {
+  const int nc = static_cast<int>(p.I.size());
+  p.blurred_basis.assign(nc, {});
+  p.basis_at_B.assign(nc, {});
+  for (int c = 0; c < nc; ++c)
+    for (int k = 1; k <= phi_terms; ++k) {
+      const auto span = emor::inverseBasis(k);
+      p.blurred_basis[c].push_back(blurredLevelFunction(p, c, span, K));
+      p.basis_at_B[c].push_back(applyTable(p.B[c], std::vector<double>(span.begin(), span.end())));
+    }
+}
+
 // ---- folds ---------------------------------------------------------------------------------------------------------
 
 Layout makeLayout(cv::Size size, int grid) {
@@ -136,20 +157,10 @@ LevelImages levelImages(const Prepared& p, const std::vector<Curve>& curves, con
   li.KH.resize(nc);
   for (int c = 0; c < nc; ++c) {
     li.phiB[c] = curves[c].curve.inverse(p.B[c]);
-    // The noisy I: its level functions debiased (noise_debias.hpp, E[g(I) | clean c] = f(c)), so that Jensen's
-    // bias of φ(I) and the clip of the noise at 0 and 1 do not pose as an effect (e.g. as an offset in the darks).
-    const NoiseDebias& debias = p.debias[c];
-    auto levelFunction = [&](std::span<const double> f) {
-      std::vector<double> g = onLevels(f, p.levels[c]);
-      if (!debias.identity()) g = debias.apply(g);
-      return applyTable(p.I[c], g);
-    };
-    li.X[c] = convolve(levelFunction(curves[c].phi), K);
+    li.X[c] = blurredLevelFunction(p, c, curves[c].phi, K);
     for (int k = 1; k <= phi_terms; ++k) {
-      const auto span = emor::inverseBasis(k);
-      const std::vector<double> h(span.begin(), span.end());
-      li.KH[c].push_back(convolve(levelFunction(span), K));
-      li.P[c].push_back(ratios[c] * li.KH[c].back() - applyTable(p.B[c], h));
+      li.KH[c].push_back(p.blurred_basis[c].at(k - 1));
+      li.P[c].push_back(ratios[c] * li.KH[c].back() - p.basis_at_B[c].at(k - 1));
     }
   }
   return li;
@@ -665,7 +676,7 @@ void readChannels(EffectSearch& search) {
     NoiseDebiasOptions dopt;
     dopt.levels = L;
     dopt.sigma = sigma * (L - 1) > 0.25 ? std::min(sigma, 0.5) : 0.0;  // below a quarter level: no bias to remove
-    p.debias.emplace_back(dopt);
+    p.debias.push_back(detail::cachedNoiseDebias(dopt));
   }
 }
 
@@ -726,6 +737,7 @@ bool prepareProblem(EffectSearch& search) {
   for (int c = 0; c < search.nc; ++c)
     if (p.I[c].size() != size || p.B[c].size() != size) throw InvalidInput("effects: channel sizes differ");
   p.usable = usablePixels(search);
+  blurBasis(p, search.K, options.phi_terms);
   search.centre = in.centre.x >= 0 ? in.centre : cv::Point2d((size.width - 1) / 2.0, (size.height - 1) / 2.0);
   search.radius = in.corner_radius > 0 ? in.corner_radius : 0.5 * std::hypot(size.width, size.height);
   p.rho2 = radiusSquared(size, search.centre, search.radius);

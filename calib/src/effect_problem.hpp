@@ -106,7 +106,16 @@ struct Prepared {
   std::vector<NoiseDebias> debias;  // per channel (identity when I is not noisy)
   cv::Mat usable;                   // CV_8U
   cv::Mat rho2;                     // CV_64F
+  // Per channel and EMoR term k = 1…phi_terms: K ⊗ h_k(I) (the debiased level function) and h_k(B). They do not
+  // depend on φ or r, so they are formed once per search, not at every re-collection around a new φ.
+  std::vector<std::vector<cv::Mat>> blurred_basis, basis_at_B;
 };
+
+// K ⊗ g(I) of channel c for a function f on the 1024-grid: f on I's levels, debiased, looked up, blurred.
+cv::Mat blurredLevelFunction(const Prepared& p, int c, std::span<const double> f, const cv::Mat& K);
+
+// Fills p.blurred_basis and p.basis_at_B for the first `phi_terms` EMoR terms.
+void blurBasis(Prepared& p, const cv::Mat& K, int phi_terms);
 
 // The samples of every channel around the given φ (curves) and exposure ratios; the level functions of the noisy
 // I are debiased (noise_debias.hpp).

@@ -26,6 +26,7 @@
 // cross-validated energy (pixels split in 16×16 tiles, checkerboard; fit on one half, energy on the other,
 // summed both ways).
 #include <functional>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -71,6 +72,15 @@ struct CrfFitOptions {
   // pairs (the data determine it firmly) and it made the vivo curves agree less (docs/RESULTS.md#small-blur).
   double ratio_prior_sigma = 0;
   int multi_starts = 4;        // GGCM starts (EMoR projection + γ 2.2, 1.6, 3.0, 1.0)
+  // moments, LM: a fit of the same pair to start from (the curve band's half-sample refits start from the whole
+  // pair's fit: a half's optimum lies next to the whole's). When `model` names the start's kind (GGCM or EMoR), that
+  // model is fitted from this start alone instead of its usual starts, the other model is not fitted, and r starts
+  // at `ratio`. Empty (the default): the usual starts.
+  struct Start {
+    ResponseModel model;
+    double ratio = 1;
+  };
+  std::optional<Start> start;
   double noise_sigma = -1;     // std of I's noise, intensities in [0,1]; < 0: estimated (noise_estimation.hpp)
   // Optional signal-dependent noise of I: σ as a function of the clean level v = 0..levels−1 (size = the level
   // grid of the fit: 256 for 8-bit data, 1024 otherwise). Empty: homoscedastic `noise_sigma`. Used for the rows
