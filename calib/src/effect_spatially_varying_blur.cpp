@@ -8,10 +8,12 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <exception>
 
 #include "crfcal/kernel.hpp"
 #include "crfcal/kernel_estimation.hpp"
 #include "effect_problem.hpp"
+#include "parallel_jobs.hpp"
 
 namespace crfcal::effect {
 
@@ -40,8 +42,9 @@ struct KernelDesign {
   int m() const { return static_cast<int>(support.size()); }
   int n() const { return static_cast<int>(idx.size()); }
 
+  // The folds' Gram matrices (n·(3m)²/2 each, the test's main cost) are independent: one per core.
   void normalEquations() {
-    for (int f = 0; f < 2; ++f) {
+    const auto errors = detail::runInParallel(2, [&](int f) {
       std::vector<Eigen::Index> rows;
       for (int r = 0; r < n(); ++r)
         if (fold[r] == f) rows.push_back(r);
@@ -50,7 +53,9 @@ struct KernelDesign {
       gram[f].selfadjointView<Eigen::Lower>().rankUpdate(Df.transpose());
       gram[f] = gram[f].selfadjointView<Eigen::Lower>();
       rhs[f] = Df.transpose() * t(rows);
-    }
+    });
+    for (const auto& e : errors)
+      if (e) std::rethrow_exception(e);
   }
 
   // Least squares on one fold (−1: all rows) with the first `cols` columns.
