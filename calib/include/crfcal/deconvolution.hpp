@@ -83,6 +83,8 @@ struct DeconvolutionResult {
   long long saturated_pixels = 0;       // masked pixel-channels (TV with mask_saturated)
   cv::Size padded_size;                 // FFT size of the first tile
   double seconds = 0;                   // wall time
+  double prepare_seconds = 0;           // of which: φ(B) and the data masks
+  double solve_seconds = 0;             // the (channel, tile) solves; the rest is ψ and the output
   std::string summary() const;
 };
 
