@@ -121,8 +121,9 @@ cv::Mat wienerSolve(const cv::Mat& f, const cv::Mat& kernel_spectrum, double nsr
 }
 
 // ---- TV solver -----------------------------------------------------------------------------------------------
-// Everything between the FFTs is fused into a few passes over buffers allocated once per tile (at 12 MP the
-// element-wise work as cv::Mat expressions, one temporary each, cost about as much as the FFTs).
+// Everything between the FFTs is fused into a few passes over buffers allocated once per tile (as cv::Mat
+// expressions each operation allocated and faulted in a full-size temporary: 6–11 % more CPU at 12 MP). The FFTs
+// themselves are most of the time (docs/RESULTS.md, "Speed at 12 MP").
 
 // The w-step and the ADMM multiplier update in one pass (Goldstein & Osher 2009): g = ∇u + b, w = shrink(g, 1/β)
 // (isotropic), b ← g − w; writes the u-step's field w − b (bregman; b starts at 0) or w into (px, py). ∇ is
