@@ -176,6 +176,34 @@ TEST(Deconvolution, ColourChannelsUseTheirOwnCurves) {
   }
 }
 
+// The input's depth only scales B to [0,1]: the same RGB image as 8-bit, 16-bit (×257) and float deblurs alike, with
+// the same saturated pixels masked (the per-row preparation of φ(B) and the masks for each depth).
+TEST(Deconvolution, EightSixteenBitAndFloatInputsAgree) {
+  const cv::Mat grey = sharpImage()(cv::Rect(80, 80, 72, 64)).clone();
+  const cv::Mat kernel = test::levinKernel(3);
+  const ResponseCurve curve = gammaCurve(2.2);
+  cv::Mat mirrored;
+  cv::flip(grey, mirrored, 1);
+  std::vector<cv::Mat> planes{quantize(irradianceBlur(grey, curve, kernel), 8),
+                              quantize(irradianceBlur(mirrored, curve, kernel), 8),
+                              quantize(irradianceBlur(grey, curve, kernel, 4.0), 8)};  // overexposed
+  cv::Mat unit, eight, sixteen, single;
+  cv::merge(planes, unit);
+  unit.convertTo(eight, CV_8UC3, 255.0);
+  eight.convertTo(sixteen, CV_16UC3, 257.0);
+  eight.convertTo(single, CV_32FC3, 1.0 / 255);
+  const DeconvolutionResult from8 = deconvolve(eight, kernel, {curve}, {});
+  const DeconvolutionResult from16 = deconvolve(sixteen, kernel, {curve}, {});
+  const DeconvolutionResult from32 = deconvolve(single, kernel, {curve}, {});
+  ASSERT_EQ(from8.deblurred.type(), CV_64FC3);
+  ASSERT_GT(from8.saturated_pixels, 0);  // the third channel clips
+  EXPECT_EQ(from16.saturated_pixels, from8.saturated_pixels);
+  EXPECT_EQ(from32.saturated_pixels, from8.saturated_pixels);
+  EXPECT_LT(cv::norm(from16.deblurred, from8.deblurred, cv::NORM_INF), 1e-4);
+  EXPECT_LT(cv::norm(from32.deblurred, from8.deblurred, cv::NORM_INF), 1e-4);
+  EXPECT_GT(rmse(from8.deblurred.reshape(1), unit.reshape(1)), 0.01);  // not vacuous: the result is not B
+}
+
 // The default CV_32F DFTs against the CV_64F reference: the same solution to far below one 8-bit level.
 TEST(Deconvolution, SinglePrecisionMatchesDoublePrecision) {
   const cv::Mat sharp = sharpImage()(cv::Rect(70, 70, 96, 96)).clone();

@@ -71,27 +71,6 @@ cv::Mat identitySpectrum(cv::Size size, int depth) {
   return spectrum(delta);
 }
 
-// u shifted by one pixel with wrap-around: result(p) = u(p + step), step = +1 (next) or −1 (previous) along x or y.
-cv::Mat shifted(const cv::Mat& u, bool along_x, int step) {
-  cv::Mat out(u.size(), u.type());
-  const int n = along_x ? u.cols : u.rows;
-  const auto part = [&](const cv::Mat& m, int from, int to) { return along_x ? m.colRange(from, to) : m.rowRange(from, to); };
-  if (step > 0) {
-    part(u, 1, n).copyTo(part(out, 0, n - 1));
-    part(u, 0, 1).copyTo(part(out, n - 1, n));
-  } else {
-    part(u, 0, n - 1).copyTo(part(out, 1, n));
-    part(u, n - 1, n).copyTo(part(out, 0, 1));
-  }
-  return out;
-}
-
-cv::Mat forwardDifference(const cv::Mat& u, bool along_x) { return shifted(u, along_x, +1) - u; }
-
-// The adjoint of forwardDifference: (Dxᵀ g)(p) = g(p − eₓ) − g(p). Computing Dᵀw here instead of through two
-// spectra saves two FFTs per u-step.
-cv::Mat differenceAdjoint(const cv::Mat& g, bool along_x) { return shifted(g, along_x, -1) - g; }
-
 // ---- padding -------------------------------------------------------------------------------------------------
 
 struct Padding {
@@ -141,10 +120,85 @@ cv::Mat wienerSolve(const cv::Mat& f, const cv::Mat& kernel_spectrum, double nsr
   return realInverse(quotient);
 }
 
+// ---- TV solver -----------------------------------------------------------------------------------------------
+// Everything between the FFTs is fused into a few passes over buffers allocated once per tile (as cv::Mat
+// expressions each operation allocated and faulted in a full-size temporary: 6–11 % more CPU at 12 MP). The FFTs
+// themselves are most of the time (docs/RESULTS.md, "Speed at 12 MP").
+
+// The w-step and the ADMM multiplier update in one pass (Goldstein & Osher 2009): g = ∇u + b, w = shrink(g, 1/β)
+// (isotropic), b ← g − w; writes the u-step's field w − b (bregman; b starts at 0) or w into (px, py). ∇ is
+// forwardDifference: (Dx u)(p) = u(p + eₓ) − u(p) with wrap-around.
+template <typename T>
+void shrinkGradient(const cv::Mat& u, double beta, bool bregman, cv::Mat& bx, cv::Mat& by, cv::Mat& px, cv::Mat& py) {
+  const int rows = u.rows, cols = u.cols;
+  const T threshold = static_cast<T>(1.0 / beta), tiny = static_cast<T>(1e-12);
+  for (int y = 0; y < rows; ++y) {
+    const T* here = u.ptr<T>(y);
+    const T* below = u.ptr<T>(y + 1 < rows ? y + 1 : 0);
+    T *bxr = bx.ptr<T>(y), *byr = by.ptr<T>(y), *pxr = px.ptr<T>(y), *pyr = py.ptr<T>(y);
+    const auto step = [&](int x, T right) {
+      const T gx = right - here[x] + bxr[x];
+      const T gy = below[x] - here[x] + byr[x];
+      const T magnitude = std::sqrt(gx * gx + gy * gy);
+      const T scale = std::max(magnitude - threshold, T(0)) / std::max(magnitude, tiny);
+      const T wx = gx * scale, wy = gy * scale;
+      if (bregman) {
+        bxr[x] = gx - wx;
+        byr[x] = gy - wy;
+        pxr[x] = wx - bxr[x];
+        pyr[x] = wy - byr[x];
+      } else {
+        pxr[x] = wx;
+        pyr[x] = wy;
+      }
+    };
+    for (int x = 0; x + 1 < cols; ++x) step(x, here[x + 1]);
+    step(cols - 1, here[0]);
+  }
+}
+
+// Dᵀp = Dxᵀ px + Dyᵀ py, (Dxᵀ g)(p) = g(p − eₓ) − g(p): the adjoint of forwardDifference, formed in the image
+// domain (two FFTs fewer per u-step than through spectra).
+template <typename T>
+void gradientAdjoint(const cv::Mat& px, const cv::Mat& py, cv::Mat& out) {
+  const int rows = px.rows, cols = px.cols;
+  for (int y = 0; y < rows; ++y) {
+    const T *pxr = px.ptr<T>(y), *pyr = py.ptr<T>(y), *above = py.ptr<T>(y > 0 ? y - 1 : rows - 1);
+    T* o = out.ptr<T>(y);
+    o[0] = (pxr[cols - 1] - pxr[0]) + (above[0] - pyr[0]);
+    for (int x = 1; x < cols; ++x) o[x] = (pxr[x - 1] - pxr[x]) + (above[x] - pyr[x]);
+  }
+}
+
+// ‖next − u‖ / ‖next‖ in one pass.
+template <typename T>
+double relativeChange(const cv::Mat& next, const cv::Mat& u) {
+  double difference = 0, norm = 0;
+  for (int y = 0; y < u.rows; ++y) {
+    const T *n = next.ptr<T>(y), *p = u.ptr<T>(y);
+    for (int x = 0; x < u.cols; ++x) {
+      const double d = double(n[x]) - double(p[x]);
+      difference += d * d;
+      norm += double(n[x]) * double(n[x]);
+    }
+  }
+  return std::sqrt(difference) / std::max(std::sqrt(norm), 1e-12);
+}
+
+// A real, even operator's packed spectrum (zero imaginary parts) with its value copied into both slots of every
+// (re, im) pair: multiplying a packed spectrum by it element-wise (cv::multiply) is then the spectral product.
+cv::Mat bothSlots(const cv::Mat& real_spectrum) {
+  return multiply(cv::Mat::ones(real_spectrum.size(), real_spectrum.type()), real_spectrum);
+}
+
 // FTVd (Wang et al. 2008, Alg. 1 with continuation) with the masked data term minimised by MM (see header).
 // Per u-step four real FFTs: K ⊗ u and F(ḟ) for the MM fill ḟ = M f + (1 − M) K ⊗ u, F(Dᵀw) (Dᵀw formed in the
 // image domain), and u. (Refreshing ḟ only once per β saves two but measurably slows the fill of the padding and
-// of saturated regions: −1 dB on the tests' images.)
+// of saturated regions: −1 dB on the tests' images.) The u-step
+//   (DᵀD + λ/β KᵀK) u = Dᵀw + λ/β Kᵀḟ
+// is diagonal in Fourier: Û = F(Dᵀw) · R + F(ḟ) · G with R = 1 / (|D̂x|² + |D̂y|² + λ/β |K̂|²) and
+// G = λ/β · conj(K̂) · R, both fixed per β.
+template <typename T>
 cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const cv::Mat& kernel_spectrum,
                             const DeconvolutionOptions& options, int* iterations) {
   const cv::Size size = f.size();
@@ -154,61 +208,51 @@ cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const cv::Mat
   const cv::Mat kernel_energy = multiply(kernel_spectrum, kernel_spectrum, true);
   const cv::Mat identity = identitySpectrum(size, depth);
   const bool masked = cv::countNonZero(mask) < mask.rows * mask.cols;
-  cv::Mat inverse_mask;
-  mask.convertTo(inverse_mask, depth, -1.0 / 255, 1.0);  // 1 − M
 
-  cv::Mat u = f.clone();
-  cv::Mat data_spectrum = multiply(spectrum(f), kernel_spectrum, true);  // conj(K̂) · F(ḟ)
-  cv::Mat u_spectrum = spectrum(u);
-  cv::Mat bx, by;  // scaled Bregman / ADMM multipliers of w = ∇u (options.bregman)
+  // buffers, allocated once
+  cv::Mat u = f.clone(), next(size, depth), fill(size, depth), adjoint(size, depth);
+  cv::Mat bx = cv::Mat::zeros(size, depth), by = cv::Mat::zeros(size, depth);  // scaled ADMM multipliers of w = ∇u
+  cv::Mat px(size, depth), py(size, depth);
+  cv::Mat u_spectrum, fill_spectrum, adjoint_spectrum, product(size, depth), reciprocal, data_gain, fixed_data;
+  cv::dft(u, u_spectrum);
+  cv::dft(f, fill_spectrum);
   int steps = 0;
   for (double beta = options.beta_start; beta <= options.beta_max * (1 + 1e-12); beta *= options.beta_factor) {
     const double ratio = options.lambda / beta;
-    cv::Mat reciprocal;  // 1 / (|D̂x|² + |D̂y|² + λ/β |K̂|²)
-    cv::divSpectrums(identity, gradient_energy + ratio * kernel_energy, reciprocal, 0);
-    if (!bx.empty() && beta > options.beta_start) {  // the scaled multiplier b = y / β follows β
+    cv::divide(1.0, bothSlots(gradient_energy + ratio * kernel_energy), reciprocal);
+    cv::mulSpectrums(reciprocal.mul(identity), kernel_spectrum, data_gain, 0, true);
+    data_gain *= ratio;
+    if (!masked) cv::mulSpectrums(fill_spectrum, data_gain, fixed_data, 0);  // Kᵀf: the same at every step
+    if (beta > options.beta_start) {  // the scaled multiplier b = y / β follows β
       bx /= options.beta_factor;
       by /= options.beta_factor;
     }
     for (int inner = 0; inner < options.inner_iterations; ++inner) {
       if (masked) {  // MM: masked-out data replaced by the current prediction K ⊗ u
-        const cv::Mat prediction = realInverse(multiply(u_spectrum, kernel_spectrum));
-        data_spectrum = multiply(spectrum(f + inverse_mask.mul(prediction - f)), kernel_spectrum, true);
+        cv::mulSpectrums(u_spectrum, kernel_spectrum, product, 0);
+        cv::dft(product, fill, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
+        f.copyTo(fill, mask);
+        cv::dft(fill, fill_spectrum);
       }
-      // w-step: isotropic shrinkage of ∇u by 1/β
-      cv::Mat gx = forwardDifference(u, true), gy = forwardDifference(u, false);
-      if (options.bregman && !bx.empty()) { gx += bx; gy += by; }
-      cv::Mat magnitude;
-      cv::magnitude(gx, gy, magnitude);
-      const cv::Mat scale = cv::max(magnitude - 1.0 / beta, 0.0) / cv::max(magnitude, 1e-12);
-      cv::Mat wx = gx.mul(scale), wy = gy.mul(scale);
-      if (options.bregman) {
-        if (bx.empty()) { bx = cv::Mat::zeros(size, depth); by = cv::Mat::zeros(size, depth); }
-        bx = gx - wx;  // b ← b + ∇u − w  (gx already holds ∇u + b)
-        by = gy - wy;
-        wx -= bx; wy -= by;
+      shrinkGradient<T>(u, beta, options.bregman, bx, by, px, py);
+      gradientAdjoint<T>(px, py, adjoint);
+      cv::dft(adjoint, adjoint_spectrum);
+      cv::multiply(adjoint_spectrum, reciprocal, u_spectrum);
+      if (masked) {
+        cv::mulSpectrums(fill_spectrum, data_gain, product, 0);
+        u_spectrum += product;
+      } else {
+        u_spectrum += fixed_data;
       }
-      const cv::Mat adjoint = differenceAdjoint(wx, true) + differenceAdjoint(wy, false);
-      // u-step: (DᵀD + λ/β KᵀK) u = Dᵀw + λ/β Kᵀḟ, diagonal in Fourier
-      u_spectrum = multiply(spectrum(adjoint) + ratio * data_spectrum, reciprocal);
-      const cv::Mat next = realInverse(u_spectrum);
-      const double change = cv::norm(next, u, cv::NORM_L2) / std::max(cv::norm(next, cv::NORM_L2), 1e-12);
-      u = next;
+      cv::dft(u_spectrum, next, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
+      const double change = relativeChange<T>(next, u);
+      std::swap(u, next);
       ++steps;
       if (change < options.tolerance) break;
     }
   }
   if (iterations) *iterations = steps;
   return u;
-}
-
-cv::Mat toUnitDouble(const cv::Mat& image) {
-  const double scale = image.depth() == CV_8U ? 1.0 / 255 : image.depth() == CV_16U ? 1.0 / 65535 : 1.0;
-  if (image.depth() != CV_8U && image.depth() != CV_16U && image.depth() != CV_32F && image.depth() != CV_64F)
-    throw InvalidInput("images to deblur must be 8-bit, 16-bit or floating point");
-  cv::Mat unit;
-  image.convertTo(unit, CV_MAKETYPE(CV_64F, image.channels()), scale);
-  return unit;
 }
 
 // ---- tiles ---------------------------------------------------------------------------------------------------
@@ -261,7 +305,8 @@ void deconvolveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv:
     cv::Mat mask(padding.padded, CV_8U, cv::Scalar(options.free_boundary ? 0 : 255));
     if (data_mask.empty()) mask(padding.interior()).setTo(255);
     else cv::Mat(data_mask(tile.data) != 0).copyTo(mask(padding.interior()));
-    u = totalVariationSolve(padded, mask, kernel_spectrum, options, iterations);
+    u = depth == CV_32F ? totalVariationSolve<float>(padded, mask, kernel_spectrum, options, iterations)
+                        : totalVariationSolve<double>(padded, mask, kernel_spectrum, options, iterations);
   }
   const cv::Rect core_in_u(padding.left + tile.core.x - tile.data.x, padding.top + tile.core.y - tile.data.y,
                            tile.core.width, tile.core.height);
@@ -333,33 +378,55 @@ cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const 
 
 DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, const std::vector<ResponseCurve>& curves,
                                const DeconvolutionOptions& options) {
-  const auto start = std::chrono::steady_clock::now();
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
   options.check();
   if (blurred.empty()) throw InvalidInput("image to deblur is empty");
   const int channels = blurred.channels();
   if (curves.size() != 1 && static_cast<int>(curves.size()) != channels)
     throw InvalidInput("deblurring needs one response curve or one per channel (" + std::to_string(channels) + ")");
+  const int image_depth = blurred.depth();
+  if (image_depth != CV_8U && image_depth != CV_16U && image_depth != CV_32F && image_depth != CV_64F)
+    throw InvalidInput("images to deblur must be 8-bit, 16-bit or floating point");
   const cv::Mat k = normalizeKernel(kernel);
   const bool irradiance = options.domain == DeconvolutionDomain::Irradiance;
+  const bool masking = options.mask_saturated && options.method == DeconvolutionMethod::TotalVariation;
   const int depth = options.single_precision ? CV_32F : CV_64F;
-  std::vector<cv::Mat> planes;
-  cv::split(blurred, planes);
+  const auto curveOf = [&](int c) -> const ResponseCurve& { return curves.size() == 1 ? curves[0] : curves[c]; };
 
-  // Per channel: the data mask and the signal to deconvolve (φ(B) or B); then every (channel, tile) pair is one job,
-  // so that two cores stay busy whatever the number of channels.
+  // Per channel: the data mask and the signal to deconvolve (φ(B) or B), straight from the interleaved input in
+  // one pass over its rows (no full-size intermediate planes: at 12 MP each would be ~100 MB).
   std::vector<cv::Mat> observed(channels), masks(channels), results(channels);
-  long long saturated = 0;
   for (int c = 0; c < channels; ++c) {
-    const ResponseCurve& curve = curves.size() == 1 ? curves[0] : curves[c];
-    planes[c] = toUnitDouble(planes[c]);  // one plane at a time: a 12 MP image stays well under 2 GB
-    if (options.mask_saturated && options.method == DeconvolutionMethod::TotalVariation) {
-      masks[c] = planes[c] < options.saturation;
-      saturated += static_cast<long long>(masks[c].total()) - cv::countNonZero(masks[c]);
-    }
-    (irradiance ? curve.inverse(planes[c]) : planes[c]).convertTo(observed[c], depth);
-    planes[c].release();
+    observed[c].create(blurred.size(), depth);
+    if (masking) masks[c].create(blurred.size(), CV_8U);
     results[c].create(blurred.size(), depth);
   }
+  const double scale = image_depth == CV_8U ? 1.0 / 255 : image_depth == CV_16U ? 1.0 / 65535 : 1.0;
+  cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
+    std::vector<double> unit(static_cast<size_t>(blurred.cols) * channels);
+    for (int y = rows.start; y < rows.end; ++y) {
+      cv::Mat row(1, blurred.cols * channels, CV_64F, unit.data());
+      blurred.row(y).reshape(1, 1).convertTo(row, CV_64F, scale);  // B in [0,1]
+      for (int c = 0; c < channels; ++c) {
+        const ResponseCurve& curve = curveOf(c);
+        uchar* mask = masking ? masks[c].ptr<uchar>(y) : nullptr;
+        for (int x = 0; x < blurred.cols; ++x) {
+          const double b = unit[static_cast<size_t>(x) * channels + c];
+          const double value = irradiance ? curve.inverse(b) : b;
+          if (depth == CV_32F) observed[c].ptr<float>(y)[x] = static_cast<float>(value);
+          else observed[c].ptr<double>(y)[x] = value;
+          if (mask) mask[x] = b < options.saturation ? 255 : 0;
+        }
+      }
+    }
+  });
+  long long saturated = 0;
+  for (int c = 0; c < channels && masking; ++c)
+    saturated += static_cast<long long>(masks[c].total()) - cv::countNonZero(masks[c]);
+  const auto prepared = Clock::now();
+
+  // Every (channel, tile) pair is one job, so that two cores stay busy whatever the number of channels.
   const std::vector<Tile> tiles = planTiles(blurred.size(), k, options);
   const int jobs = channels * static_cast<int>(tiles.size());
   std::vector<int> steps(jobs, 0);
@@ -369,22 +436,34 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
       deconvolveTile(observed[c], masks[c], k, tiles[job % tiles.size()], options, results[c], &steps[job]);
     }
   });
-  for (int c = 0; c < channels; ++c) {
-    const ResponseCurve& curve = curves.size() == 1 ? curves[0] : curves[c];
-    observed[c].release();
-    cv::Mat clamped;
-    cv::Mat(cv::min(cv::max(results[c], 0.0), 1.0)).convertTo(clamped, CV_64F);
-    results[c] = irradiance ? curve.forward(clamped) : clamped;
-  }
+  for (cv::Mat& plane : observed) plane.release();
+  const auto solved = Clock::now();
 
+  // Clamped to [0,1] and mapped back with ψ (irradiance), written into the interleaved CV_64F result.
   DeconvolutionResult result;
-  cv::merge(results, result.deblurred);
+  result.deblurred.create(blurred.size(), CV_MAKETYPE(CV_64F, channels));
+  cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      double* out = result.deblurred.ptr<double>(y);
+      for (int c = 0; c < channels; ++c) {
+        const ResponseCurve& curve = curveOf(c);
+        for (int x = 0; x < blurred.cols; ++x) {
+          const double solved_value = depth == CV_32F ? double(std::min(std::max(results[c].ptr<float>(y)[x], 0.0f), 1.0f))
+                                                      : std::min(std::max(results[c].ptr<double>(y)[x], 0.0), 1.0);
+          out[static_cast<size_t>(x) * channels + c] = irradiance ? curve.forward(solved_value) : solved_value;
+        }
+      }
+    }
+  });
   result.options = options;
   result.iterations = steps[0];
   result.saturated_pixels = saturated;
   result.tiles = static_cast<int>(tiles.size());
   result.padded_size = choosePadding(tiles[0].data.size(), k).padded;
-  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const auto seconds = [](Clock::time_point from, Clock::time_point to) { return std::chrono::duration<double>(to - from).count(); };
+  result.prepare_seconds = seconds(start, prepared);
+  result.solve_seconds = seconds(prepared, solved);
+  result.seconds = seconds(start, Clock::now());
   return result;
 }
 

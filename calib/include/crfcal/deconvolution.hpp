@@ -69,8 +69,9 @@ struct DeconvolutionOptions {
   bool single_precision = true;  // CV_32F DFTs (about 2x faster, half the memory); false: CV_64F, the reference
   // Large images are deconvolved in tiles of about this FFT size (0: the whole image at once); each tile fits its
   // core plus `tile_overlap` px on every side (0: twice the kernel's extent) and keeps the core. Images that fit in
-  // 1.25 tiles are done whole.
-  int tile_size = 640;
+  // 1.25 tiles are done whole. 960 (was 640): at 12 MP with a 25 px kernel the FFT area falls from 1.82× to 1.38×
+  // the image (fewer overlaps) at ~15 % more time per FFT pixel, and the fewer seams gain +0.3 dB.
+  int tile_size = 960;
   int tile_overlap = 0;
   void check() const;          // throws InvalidInput naming the bad option
 };
@@ -83,6 +84,8 @@ struct DeconvolutionResult {
   long long saturated_pixels = 0;       // masked pixel-channels (TV with mask_saturated)
   cv::Size padded_size;                 // FFT size of the first tile
   double seconds = 0;                   // wall time
+  double prepare_seconds = 0;           // of which: φ(B) and the data masks
+  double solve_seconds = 0;             // the (channel, tile) solves; the rest is ψ and the output
   std::string summary() const;
 };
 
