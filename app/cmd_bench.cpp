@@ -262,12 +262,12 @@ struct SyntheticSetup {
   std::vector<SyntheticCase> cases;
 };
 
-// `corrected-score[:lambda=X][:ridge][:bins=N][:cue]`: the corrected score (Nakamura 1990; Stefanski 1989) —
-// φ evaluated at the noisy I replaced by h = R φ with E[h(clip(I + n))] = φ(I) under the clipped, quantised
-// noise law (noise_debias.hpp) — with its regularisation λ (relative, default 1e-4), ridge instead of the
-// smoothness penalty, N B-level bins instead of 64, and the CUE variances. Used to choose λ on some curves and
-// report on others (docs/RESULTS.md, "Corrected score, measured"). `:below=S`, `:above=S`: only when I's estimated σ is
-// below / above S 8-bit levels, else the default.
+// `corrected-score[:lambda=X][:ridge][:bins=N][:cue][:below=S][:above=S]`: the corrected score (Nakamura 1990;
+// Stefanski 1989) — φ evaluated at the noisy I replaced by h = R φ with E[h(clip(I + n))] = φ(I) under the
+// clipped, quantised noise law (noise_debias.hpp) — with its regularisation λ (relative, default 1e-4), ridge
+// instead of the smoothness penalty, N B-level bins instead of 64, and the CUE variances. Used to choose λ on some curves and
+// report on others (docs/RESULTS.md, "Corrected score, measured"). `:below=S`, `:above=S`: only when I's estimated
+// σ is below / above S 8-bit levels, else the default.
 std::optional<Variant> correctedScoreVariant(const std::string& name) {
   const std::string stem = "corrected-score";
   if (name.rfind(stem, 0) != 0) return std::nullopt;
