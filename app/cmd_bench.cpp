@@ -25,6 +25,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/ggcm.hpp"
 #include "crfcal/level_mixture.hpp"
+#include "crfcal/noise_estimation.hpp"
 #include "crfcal/response_curve.hpp"
 #include "crfcal/simex.hpp"
 #include "crfcal/simulation.hpp"
@@ -97,6 +98,7 @@ struct SyntheticArgs {
   double ratio = 1.0;
   bool quiet = false;
   bool timing = true;
+  bool curve_split = false;  // print the means on the even- and odd-numbered curves (choose / held out)
   bool force = false;  // --json/-o over files crfcal did not write (never deletes them)
 };
 
@@ -111,7 +113,22 @@ struct Variant {
   CrfFitOptions options;
   bool true_sigma = false;  // oracle σ (ablation only)
   std::optional<SimexOptions> simex{};  // set: SIMEX around the fit (calib/include/crfcal/simex.hpp)
+  // > 0: the variant's options only when I's estimated noise σ̂ is below this many 8-bit levels, else the
+  // default's (the corrected score pays at σ ≈ 8 levels and costs at 18–25: docs/RESULTS.md, issue 23)
+  double below_sigma_levels = 0;
+  double above_sigma_levels = 0;  // and (when > 0) only when σ̂ is above this many levels
 };
+
+// The options one fit of variant v uses on a pair whose sharp shot is `sharp` (CV_64F in [0, 1]).
+CrfFitOptions variantOptions(const Variant& v, const cv::Mat& sharp) {
+  if (!(v.below_sigma_levels > 0) && !(v.above_sigma_levels > 0)) return v.options;
+  const double sigma = estimateNoiseSigma(sharp).sigma;  // the estimate the fitter makes itself
+  const bool below = !(v.below_sigma_levels > 0) || sigma * 255 < v.below_sigma_levels;
+  const bool above = sigma * 255 > v.above_sigma_levels;
+  CrfFitOptions options = below && above ? v.options : CrfFitOptions{};
+  options.noise_sigma = sigma;
+  return options;
+}
 
 std::vector<Variant> allVariants() {
   std::vector<Variant> v;
@@ -245,9 +262,45 @@ struct SyntheticSetup {
   std::vector<SyntheticCase> cases;
 };
 
+// `corrected-score[:lambda=X][:ridge][:bins=N][:cue][:below=S][:above=S]`: the corrected score (Nakamura 1990;
+// Stefanski 1989) — φ evaluated at the noisy I replaced by h = R φ with E[h(clip(I + n))] = φ(I) under the
+// clipped, quantised noise law (noise_debias.hpp) — with its regularisation λ (relative, default 1e-4), ridge
+// instead of the smoothness penalty, N B-level bins instead of 64, and the CUE variances. Used to choose λ on some curves and
+// report on others (docs/RESULTS.md, "Corrected score, measured"). `:below=S`, `:above=S`: only when I's estimated
+// σ is below / above S 8-bit levels, else the default.
+std::optional<Variant> correctedScoreVariant(const std::string& name) {
+  const std::string stem = "corrected-score";
+  if (name.rfind(stem, 0) != 0) return std::nullopt;
+  Variant v{name, "corrected score h = R phi (clipped noise law)", CrfFitOptions{}};
+  v.options.experimental.noise = NoiseHandling::debias;
+  std::size_t pos = stem.size();
+  while (pos < name.size()) {
+    if (name[pos] != ':') throw InvalidInput("bench: bad variant '" + name + "' (options follow ':')");
+    const std::size_t end = std::min(name.find(':', pos + 1), name.size());
+    const std::string part = name.substr(pos + 1, end - pos - 1);
+    try {
+      if (part.rfind("lambda=", 0) == 0) v.options.experimental.debias_regularization = std::stod(part.substr(7));
+      else if (part == "ridge") v.options.experimental.debias_regularizer = DebiasRegularizer::ridge;
+      else if (part.rfind("bins=", 0) == 0) v.options.level_bins = std::stoi(part.substr(5));
+      else if (part == "cue") v.options.experimental.variance_correction = true;
+      else if (part.rfind("below=", 0) == 0) v.below_sigma_levels = std::stod(part.substr(6));
+      else if (part.rfind("above=", 0) == 0) v.above_sigma_levels = std::stod(part.substr(6));
+      else throw InvalidInput("");
+    } catch (const std::exception&) {
+      throw InvalidInput("bench: bad option '" + part + "' of variant '" + name +
+                         "' (lambda=X, ridge, bins=N, cue, below=S, above=S)");
+    }
+    v.description += ", " + part;
+    pos = end;
+  }
+  v.options.check();
+  return v;
+}
+
 Variant findVariant(const std::vector<Variant>& all, const std::string& name) {
   for (const auto& v : all)
     if (v.name == name) return v;
+  if (auto v = correctedScoreVariant(name)) return *v;
   throw InvalidInput("bench: unknown variant '" + name + "'");
 }
 
@@ -297,10 +350,10 @@ SyntheticSetup loadSetup(const SyntheticArgs& args) {
 // One variant's fit of one simulated pair, scored against the true curve.
 void fitVariant(const Variant& v, const SimulationResult& pair, const cv::Mat& kernel, const std::vector<double>& truth,
                 CaseResult& out) {
-  CrfFitOptions options = v.options;
+  const auto t0 = std::chrono::steady_clock::now();
+  CrfFitOptions options = variantOptions(v, pair.sharp);
   options.threads = 1;
   if (v.true_sigma) options.noise_sigma = out.sigma_true;
-  const auto t0 = std::chrono::steady_clock::now();
   try {
     const CrfFitResult fit = v.simex ? fitInverseCrfSimex(pair.sharp, pair.blurred, kernel, options, *v.simex)
                                      : fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
@@ -481,6 +534,28 @@ void printSigmaAndChoices(const std::vector<Variant>& variants, const std::vecto
   }
 }
 
+// Held-out split (issue 23): the mean φ RMSE of every variant per noise level on the even-numbered curves (where a
+// variant's parameters are chosen) and on the odd-numbered ones (where it is reported).
+void printCurveSplit(const SyntheticSetup& setup, const std::vector<CaseResult>& results) {
+  std::printf("\ncurve split: mean RMSE (shape) on the even-numbered curves (choose) | on the odd-numbered (held out)\n");
+  for (const Variant& v : setup.variants)
+    for (int level = 0; level < 3; ++level) {
+      double sum[2] = {0, 0}, shape[2] = {0, 0};
+      int n[2] = {0, 0};
+      for (const auto& r : results)
+        if (r.level == level && r.rmse.count(v.name)) {
+          const int part = r.curve % 2;
+          sum[part] += r.rmse.at(v.name);
+          shape[part] += r.shape.at(v.name);
+          ++n[part];
+        }
+      if (n[0] + n[1] == 0) continue;
+      auto mean = [](double a, int k) { return k ? a / k : 0.0; };
+      std::printf("%-34s %9.3f   %.4f (%.4f, %d cases) | %.4f (%.4f, %d cases)\n", v.name.c_str(), kNoiseVariances[level],
+                  mean(sum[0], n[0]), mean(shape[0], n[0]), n[0], mean(sum[1], n[1]), mean(shape[1], n[1]), n[1]);
+    }
+}
+
 // Mean time of `reps` evaluations of a level mixture.
 double timeMix(const LevelMixture& mixture, const std::vector<double>& lut, std::vector<double>& out, int reps) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -552,6 +627,18 @@ void measureSpeed(const SyntheticSetup& setup, nlohmann::json& json) {
                    {"sparse_mixture_default_pixels_ms", sparse_sub * 1e3}, {"speedup", direct / sparse},
                    {"speedup_default_pixels", direct / sparse_sub}, {"fit_default_seconds", fit_s},
                    {"fit_seed_seconds", seed_s}, {"edge_pixels", pixels.size()}};
+  // the extra variants on the same pair (one core): the 0.5 s budget of one fit (issue 23)
+  for (const Variant& v : setup.variants) {
+    if (v.name == "default" || v.name == "seed") continue;
+    t0 = std::chrono::steady_clock::now();
+    CrfFitOptions vo = variantOptions(v, pair.sharp);
+    vo.threads = 1;
+    const CrfFitResult vf = v.simex ? fitInverseCrfSimex(pair.sharp, pair.blurred, k27, vo, *v.simex)
+                                    : fitInverseCrf(pair.sharp, pair.blurred, k27, vo);
+    const double vs = since(t0);
+    std::printf("  one fit, %s: %.3f s (phi RMSE %.4f)\n", v.name.c_str(), vs, curveRmse(vf.inverse_crf, curves[0].phi));
+    json["speed"]["fit_variant_seconds"][v.name] = vs;
+  }
 }
 
 // Fig. 5 left: the estimates of the first curve over the 8 kernels, per variant and noise level.
@@ -627,6 +714,7 @@ int runSynthetic(const SyntheticArgs& args) {
 
   nlohmann::json json = printSyntheticTable(args, setup, run.results, wall);
   printSigmaAndChoices(setup.variants, run.results);
+  if (args.curve_split) printCurveSplit(setup, run.results);
   if (args.timing) measureSpeed(setup, json);
 
   if (!args.json.empty()) io::writeJsonOutput(args.json, json, policy.command, 2);
@@ -657,6 +745,9 @@ const BenchRegistration synthetic_registration(
           ->check(CLI::IsMember({"unit", "8bit"}))
           ->capture_default_str();
       command.add_option("--cases-limit", args->cases_limit, "Run only this many cases (spread over the grid)");
+      command.add_flag("--curve-split", args->curve_split,
+                       "Also print each variant's mean on the even-numbered curves (to choose a parameter on) and on "
+                       "the odd-numbered ones (held out)");
       command.add_option("--json", args->json, "Write the numbers as JSON");
       command.add_option("--plot", args->plot, "Write the seed's Fig. 5 (estimated vs true phi) as PNGs here");
       command.add_flag("--force", args->force, kForceHelp);
@@ -664,7 +755,8 @@ const BenchRegistration synthetic_registration(
       command.add_option("--variants", args->variants,
                          "Extra ablation variants: seed+denoise seed+debias seed-fixr moments+debias moments+debias+cue "
                          "moments+cue moments+denoise moments-1pos moments-8pos default+true-sigma default-ggcm "
-                         "default-emor default-ggcm-nm default-fixr simex simex-linear");
+                         "default-emor default-ggcm-nm default-fixr simex simex-linear "
+                         "corrected-score[:lambda=X][:ridge][:bins=N][:cue][:below=S][:above=S]");
       command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::Range(1, kMaxThreads));
       command.add_option("--ratio", args->ratio, "Exposure ratio r of the simulated pairs (seed: 1)")
           ->check(exposureRatioOption(false));

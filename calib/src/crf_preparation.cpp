@@ -224,6 +224,7 @@ NoiseOperators makeNoiseOperators(const Prepared& prep, const CrfFitOptions& opt
     dopt.sigma = std::min(sigma, 0.5);
     dopt.sigma_per_level = options.noise_sigma_per_level;
     dopt.regularization = options.experimental.debias_regularization;
+    dopt.regularizer = options.experimental.debias_regularizer;
     ops.debias = detail::cachedNoiseDebias(dopt);
   }
   ops.debias_active = use_debias && !ops.debias.identity();

@@ -59,7 +59,10 @@ NoiseDebias::NoiseDebias(const NoiseDebiasOptions& options) {
   }
   const Eigen::MatrixXd tt = t_.transpose() * t_;
   const double lambda = options.regularization * tt.trace() / n;
-  const Eigen::MatrixXd a = tt + lambda * (d2.transpose() * d2) * static_cast<double>((n - 1)) * (n - 1);
+  const Eigen::MatrixXd penalty = options.regularizer == DebiasRegularizer::ridge
+                                      ? Eigen::MatrixXd(Eigen::MatrixXd::Identity(n, n))
+                                      : Eigen::MatrixXd((d2.transpose() * d2) * static_cast<double>((n - 1)) * (n - 1));
+  const Eigen::MatrixXd a = tt + lambda * penalty;
   r_ = a.ldlt().solve(t_.transpose());
 }
 

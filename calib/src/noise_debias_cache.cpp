@@ -10,7 +10,7 @@ namespace {
 
 bool sameLaw(const NoiseDebiasOptions& a, const NoiseDebiasOptions& b) {
   return a.levels == b.levels && a.sigma == b.sigma && a.regularization == b.regularization &&
-         a.sigma_per_level == b.sigma_per_level;
+         a.regularizer == b.regularizer && a.sigma_per_level == b.sigma_per_level;
 }
 
 // A pair's fits see one or two noise laws (the fitter's and the effect search's, per channel); eight cover an RGB

@@ -33,6 +33,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "crfcal/noise_debias.hpp"
 #include "crfcal/response_model.hpp"
 
 namespace crfcal {
@@ -145,6 +146,7 @@ struct CrfFitOptions {
     int ratio_rounds = 6;  // seed_intensity: alternations φ-step / r-step (Eq. 25) at most
     NoiseHandling noise = NoiseHandling::none;  // debias helps only at σ² = 0.001 (measured); see the bench
     double debias_regularization = 1e-4;        // noise = debias: λ of the deconvolution (noise_debias.hpp)
+    DebiasRegularizer debias_regularizer = DebiasRegularizer::smoothness;  // noise = debias: its penalty
     // moments: continuously-updated GMM — every bin sum divided by its model standard deviation at the current φ
     // (I's noise through the transition matrix + quantisation), so the squared noise adds a φ-independent
     // constant; fitted from the least-squares solution; then GGCM vs EMoR by the lower CUE energy (equal parameter
