@@ -23,6 +23,7 @@ namespace crfcal {
 // ridge its size (λ I, plain Tikhonov).
 enum class DebiasRegularizer { smoothness, ridge };
 
+// Every field defines the operator: a new one must also be compared in calib/src/noise_debias_cache.cpp.
 struct NoiseDebiasOptions {
   int levels = 256;              // L
   double sigma = 0;              // noise std of I, intensities in [0,1]; 0 → R = identity
