@@ -59,10 +59,10 @@ NoiseDebias::NoiseDebias(const NoiseDebiasOptions& options) {
   }
   const Eigen::MatrixXd tt = t_.transpose() * t_;
   const double lambda = options.regularization * tt.trace() / n;
-  const Eigen::MatrixXd penalty = options.regularizer == DebiasRegularizer::ridge
-                                      ? Eigen::MatrixXd(Eigen::MatrixXd::Identity(n, n))
-                                      : Eigen::MatrixXd((d2.transpose() * d2) * static_cast<double>((n - 1)) * (n - 1));
-  const Eigen::MatrixXd a = tt + lambda * penalty;
+  // (the smoothness product in its original order: the default operator stays bit-identical)
+  const Eigen::MatrixXd a = options.regularizer == DebiasRegularizer::ridge
+                                ? Eigen::MatrixXd(tt + lambda * Eigen::MatrixXd::Identity(n, n))
+                                : Eigen::MatrixXd(tt + lambda * (d2.transpose() * d2) * static_cast<double>((n - 1)) * (n - 1));
   r_ = a.ldlt().solve(t_.transpose());
 }
 
