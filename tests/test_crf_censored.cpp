@@ -72,7 +72,13 @@ CrfFitOptions options(double censored_weight) {
   return o;
 }
 
-TEST(CrfCensored, ClippedHighlightsFixTheScaleTheExtrapolationMisses) {
+// r held at the truth. Without the term the fit's φ is too high on the data (its shoulder too flat): e0 ≈ 0.040. The
+// clipped pixels bound φ(1) from above relative to φ at I's levels, i.e. they forbid the opposite error (a shoulder
+// too steep), so here they must be used (the rim of the discs) and must not make φ worse. Measured during
+// development: the two-sided version (also the unclipped pixels next to a clip, z < φ(s)) brought this pair to
+// 0.004, but on the r = 4 bench it pulled r down by up to 8 % (resampled, JPEG-ringing B next to clips), so only
+// the clipped side is used (docs/RESULTS.md#censored).
+TEST(CrfCensored, ClippedRimIsUsedAndDoesNotWorsenTheScale) {
   const Pair pair = realRegimePair(true);
   ASSERT_GT(cv::countNonZero(pair.blurred >= 255), 1000);
   ASSERT_EQ(cv::countNonZero(pair.sharp >= 255), 0);  // the sharp shot's highlights are inside its range
@@ -83,9 +89,7 @@ TEST(CrfCensored, ClippedHighlightsFixTheScaleTheExtrapolationMisses) {
   const double e0 = rmseOverUnit(without.inverse_crf, shoulderCurve());
   const double e1 = rmseOverUnit(with.inverse_crf, shoulderCurve());
   EXPECT_GT(e0, 0.03) << without.summary();  // the scale is extrapolated wrong without the term
-  EXPECT_LT(e1, 0.015) << with.summary();
-  EXPECT_LT(e1, 0.5 * e0) << e0 << " " << e1;
-  EXPECT_NEAR(with.ratio, 4.0, 0.2);
+  EXPECT_LE(e1, e0 + 0.002) << with.summary();
 }
 
 TEST(CrfCensored, InactiveWithoutClippedPixels) {
