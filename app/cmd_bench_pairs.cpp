@@ -59,6 +59,7 @@ struct PairsArgs {
   int kernel_size = 35;
   std::string channels = "g";
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;
+  double censored_weight = PairCalibrationOptions{}.fit.censored_weight;  // B's clipped pixels, censored
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.experimental.noise);
   bool fix_ratio = false;
   bool always_fit_ratio = false;
@@ -277,6 +278,7 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.fit.nominal_ratio = loaded.exif_ratio->ratio();
   if (args.chroma_model == "auto") options.sharp_chroma = {loaded.sharp.chroma_block_h, loaded.sharp.chroma_block_v};
   options.fit.ratio_prior_sigma = args.ratio_prior;
+  options.fit.censored_weight = args.censored_weight;
   options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
   options.fit.fit_ratio = !args.fix_ratio;
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
@@ -444,7 +446,8 @@ struct PairsRun {
     row.update({{"phi_rmse_G", s.rmse}, {"phi_rmse_G_base_fit", s.base}, {"ratio_fitted_over_true", s.rr},
                 {"effects_detected", r.effects.detected()}, {"kernel_shape_error", s.kerr},
                 {"registration_corner_error_px", s.cerr}, {"seconds", s.seconds}, {"swapped", loaded.swapped},
-                {"inverse_crf_G", r.fits.at("G").inverse_crf}, {"warnings", r.warnings}});
+                {"inverse_crf_G", r.fits.at("G").inverse_crf}, {"warnings", r.warnings},
+                {"censored_clipped_pixels_G", r.fits.at("G").pixels.censored_clipped}});
     // Shape over the covered range after the best common scale: φ → bφ leaves Eq. 4 unchanged.
     std::optional<IntensityRange> covered;
     if (r.covered_range.count("G")) covered = r.covered_range.at("G");
@@ -676,6 +679,11 @@ const BenchRegistration registration(
           ->capture_default_str()
           ->check(CLI::IsMember({"on", "off"}));
       command.add_option("--ratio-prior", args->ratio_prior, "Sigma of the EXIF prior on log r (0: r from the images alone)")
+          ->capture_default_str()
+          ->check(CLI::NonNegativeNumber);
+      command.add_option("--censored-weight", args->censored_weight,
+                         "Weight of the blurred shot's clipped pixels as censored observations of the fit (where B "
+                         "clips, r (phi(I) (x) K) >= phi(1); 1: as data, 0: excluded as in the seed)")
           ->capture_default_str()
           ->check(CLI::NonNegativeNumber);
       command.add_option("--irradiance-kernel-lambda", args->irradiance_kernel_lambda,

@@ -59,6 +59,7 @@ struct CalibrateArgs {
   bool unweighted_irradiance_kernel = false;
   std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;  // σ of log r around EXIF/--ratio
+  double censored_weight = PairCalibrationOptions{}.fit.censored_weight;  // B's clipped pixels, censored
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.experimental.noise);
   bool quiet = false;
   bool strict = false;              // exit kExitUnreliable when a channel's verdict is "unreliable"
@@ -221,6 +222,7 @@ PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nomi
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
   options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
   options.fit.ratio_prior_sigma = args.ratio_prior;
+  options.fit.censored_weight = args.censored_weight;
   options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
   options.fit.model = args.model == "ggcm" ? CrfModelChoice::ggcm
                       : args.model == "emor" ? CrfModelChoice::emor
@@ -579,6 +581,11 @@ const CommandRegistration registration(
       command.add_option("--ratio-prior", args->ratio_prior,
                          "Fitted r: sigma of the prior on log r around the EXIF/--ratio value, weighed against what the "
                          "blur determines (0: r from the images alone)")
+          ->capture_default_str()
+          ->check(CLI::NonNegativeNumber);
+      command.add_option("--censored-weight", args->censored_weight,
+                         "Weight of the blurred shot's clipped pixels as censored observations of the fit (where B "
+                         "clips, r (phi(I) (x) K) >= phi(1); 1: as data, 0: excluded as in the seed)")
           ->capture_default_str()
           ->check(CLI::NonNegativeNumber);
       auto* raw_truth = command.add_option("--raw-truth", args->raw_truth,

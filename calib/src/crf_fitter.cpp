@@ -92,6 +92,13 @@ void CrfFitOptions::check() const {
   if (!(min_local_exponent >= 0 && min_local_exponent < 1))
     throw InvalidInput("fit options: min_local_exponent must be in [0, 1)");
   if (!(saturation_high > saturation_low)) throw InvalidInput("fit options: saturation_high must exceed saturation_low");
+  if (!(censored_weight >= 0) || !std::isfinite(censored_weight))
+    throw InvalidInput("fit options: censored_weight must be >= 0");
+  if (!(censored_sigma_floor > 0) || !std::isfinite(censored_sigma_floor))
+    throw InvalidInput("fit options: censored_sigma_floor must be positive");
+  if (!(censored_margin >= 0) || !std::isfinite(censored_margin))
+    throw InvalidInput("fit options: censored_margin must be >= 0");
+  if (max_censored_pixels < 0) throw InvalidInput("fit options: max_censored_pixels must be >= 0");
   if (experimental.ratio_rounds < 1) throw InvalidInput("fit options: experimental.ratio_rounds must be >= 1");
   if (max_evaluations < 10) throw InvalidInput("fit options: max_evaluations must be at least 10");
   if (min_pixels < 1) throw InvalidInput("fit options: min_pixels must be positive");
@@ -112,7 +119,10 @@ std::string CrfFitResult::summary() const {
     s << "  candidate " << c.kind << ": energy " << c.energy << ", criterion " << c.criterion
       << (c.valid ? "" : " (invalid)") << ", r " << c.ratio << "\n";
   s << "pixels: " << pixels.used << " used of " << pixels.total << " (border " << pixels.border << ", saturated "
-    << pixels.saturated << ", unmodelled " << pixels.unmodelled << ", low weight " << pixels.low_weight << ", subsampled " << pixels.subsampled << ")\n";
+    << pixels.saturated << ", unmodelled " << pixels.unmodelled << ", low weight " << pixels.low_weight << ", subsampled " << pixels.subsampled << ")";
+  if (pixels.censored_clipped > 0)
+    s << "; censored: " << pixels.censored_clipped << " clipped in B";
+  s << "\n";
   s.precision(4);
   s << "noise sigma of I: " << noise_sigma << (noise_sigma_estimated ? " (estimated)" : " (given)") << "; "
     << toString(objective) << ", " << toString(optimizer) << ", " << levels << " levels, " << moment_bins

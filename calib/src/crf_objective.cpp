@@ -289,6 +289,7 @@ MomentProblem buildMomentProblem(const Prepared& prep, const NoiseOperators& noi
   problem.omega = Eigen::VectorXd::Ones(bins);
   problem.covered_levels = coveredLevels(problem.moments);
   result.covered_levels = problem.covered_levels;
+  problem.censored = buildCensoredRows(prep, options);
   return problem;
 }
 
@@ -330,6 +331,7 @@ MomentSystem MomentProblem::system(int fold) const {
     s.v1.push_back(std::min(L - 1, static_cast<int>(std::ceil(double(kb + 1) / level_bins * (L - 1))) + margin));
   }
   if (level_operator) s.h = s.h * (*level_operator);  // (Rᵀ H_k)ᵀ = H_kᵀ R
+  if (censored.rows() > 0) s.censored = censored.select(fold);
   return s;
 }
 
@@ -359,7 +361,8 @@ bool MomentResiduals::operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res,
   const double norm = 1.0 / std::sqrt(std::max(sys.weight, 1e-300));
   const int monotone_rows = emor ? kGrid - 1 : 0;
   const PriorRows priors(sys, fit_ratio_, with_prior_);
-  const int extra = monotone_rows + priors.count();
+  const CensoredResiduals censored(sys.censored, norm);
+  const int extra = monotone_rows + priors.count() + censored.count();
   std::vector<double> f, jf;
   if (!curve_.values(p.data(), f, jac ? &jf : nullptr)) return false;
   if (!priors.defined(f)) return false;
@@ -383,6 +386,8 @@ bool MomentResiduals::operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res,
   const double log_r = fit_ratio_ ? p[d] : 0.0;
   std::vector<double> prior_scale;
   priors.residuals(f, log_r, res, rows + monotone_rows, prior_scale);
+  const int censored_offset = rows + monotone_rows + priors.count();
+  if (!censored.residuals(f, r, res, censored_offset)) return false;
   if (!jac) return true;
   const int np = static_cast<int>(p.size());
   jac->setZero(rows + extra, np);
@@ -401,6 +406,7 @@ bool MomentResiduals::operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res,
       if (g[i] - g[i + 1] + 1e-7 > 0)
         for (int j = 0; j < d; ++j) (*jac)(rows + i, j) = kPenaltyScale * (jg[j * kGrid + i] - jg[j * kGrid + i + 1]);
   priors.jacobian(f, jm, res, rows + monotone_rows, prior_scale, d, *jac);
+  if (censored.count() > 0) censored.jacobian(f, jm, r, fit_ratio_, res, censored_offset, *jac);
   return true;
 }
 

@@ -13,6 +13,7 @@
 
 #include <Eigen/Core>
 
+#include "crf_censored.hpp"
 #include "crf_curve.hpp"
 #include "crf_preparation.hpp"
 #include "crfcal/level_mixture.hpp"
@@ -72,6 +73,8 @@ struct MomentSystem {
   // Exposure-ratio prior (CrfFitOptions::ratio_prior_sigma): one row scale · (log r − log r_nominal) when r is fitted.
   double ratio_prior_scale = 0;
   double ratio_prior_log_centre = 0;
+  // Saturated pixels of B as censored observations (crf_censored.hpp); no rows when off or none.
+  CensoredRows censored;
   int levels() const { return static_cast<int>(h.cols()); }
 };
 
@@ -83,6 +86,7 @@ struct MomentProblem {
   const Eigen::MatrixXd* level_operator = nullptr;  // R or J applied to the rows (null: g = φ)
   Eigen::VectorXd omega;                      // per-bin weights ω_k
   std::pair<int, int> covered_levels{0, 0};   // lowest/highest level of the data (0.1 % tails dropped)
+  CensoredRows censored;                      // B's clipped pixels and those just below (crf_censored.hpp)
 
   // The system of one fold (0, 1) or of all the data (−1), without priors.
   MomentSystem system(int fold) const;
@@ -103,7 +107,7 @@ constexpr double kPenaltyScale = 1e3;
 // The residual vector Levenberg–Marquardt minimises for one curve on one system: parameters p = (model
 // parameters, log r if fitted). Rows: the data (normalised so that the squared norm is the energy per unit
 // weight), EMoR's monotonicity penalty on the 1024 grid, then the priors (crf_priors.hpp; the extrapolation prior
-// only when with_prior). False outside the model's domain.
+// only when with_prior), then the censored rows (crf_censored.hpp). False outside the model's domain.
 class MomentResiduals {
  public:
   MomentResiduals(const Curve& curve, const MomentSystem& sys, double r0, bool fit_ratio, bool with_prior);

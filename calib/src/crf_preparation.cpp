@@ -7,6 +7,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "crf_censored.hpp"
 #include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
@@ -208,6 +209,7 @@ Prepared preparePair(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat
   acc.unmodelled = cv::countNonZero(unmodelled);
   bad |= unmodelled;
   selectPixels(prep, inside, bad, selectionWeight(prep, options), options, acc);
+  selectCensoredPixels(prep, inside, unmodelled, options, acc);
   return prep;
 }
 

@@ -22,6 +22,10 @@ struct Prepared {
   double sigma = 0;                // σ of I's noise (given or estimated; mean over levels when per level)
   std::vector<cv::Point> pixels;
   std::vector<double> seed_weight;  // W_p (seed objective)
+  // Censored observations (crf_censored.hpp; CrfFitOptions::censored_weight): B clipped (+1) or below the clip
+  // next to one (−1). Empty when the term is off or B has no usable clipped pixel.
+  std::vector<cv::Point> censored_pixels;
+  std::vector<signed char> censored_side;
 };
 
 // Checks the pair, converts it to levels, estimates σ and selects the usable pixels. Fills result.levels,

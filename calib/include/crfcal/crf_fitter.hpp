@@ -118,6 +118,21 @@ struct CrfFitOptions {
   double min_local_exponent = 0.25;
   double saturation_high = 254.5 / 255.0;  // B or I at/above: saturated (dilated by the kernel's support)
   double saturation_low = 0.5 / 255.0;     // B or I at/below: censored black (dilated likewise)
+  // moments: weight λ of the saturated pixels of B as censored observations (issue 19; crf_censored.hpp). φ → bφ
+  // leaves Eq. 4 unchanged, so φ(1) = 1 is otherwise reached by extrapolation from the top of the data. Where B
+  // clips, r · (φ(I) ⊗ K) ≥ φ(saturation_high): each clipped pixel on the rim of a clipped region adds the
+  // censored-Gaussian −log Φ (a clear violation by δ in B's intensity costs δ², as a data pixel misfit by δ does):
+  // λ = 1 weighs them as data. Pixels whose support touches I's highlights, black or the border are not used (I
+  // clipped too says nothing). Only the clipped side: the unclipped pixels next to a clip (resampled and JPEG-ringing
+  // B) pulled r down by 8 % on the r = 4 bench. 0: off (the seed's "exclude saturated pixels").
+  double censored_weight = 0;
+  // moments, censored pixels: σ floor of ψ(r · (φ(I) ⊗ K)) at the clip in B's intensity units (B's noise, JPEG,
+  // resampling); I's noise through the kernel adds to it per pixel.
+  double censored_sigma_floor = 2.0 / 255;
+  // moments, censored pixels: the clip condition is relaxed by this many σ_p (−log Φ(t + κ)): a pixel within its
+  // noise of the clip costs nothing and does not push φ; only clear violations do.
+  double censored_margin = 2.0;
+  int max_censored_pixels = 2000;  // deterministic subsample above this (0: all)
   // Optional CV_32F map of the pair's size: a bound of the error of I's values that the pointwise model cannot
   // represent, in [0, 1] units — the lost chroma detail of a subsampled JPEG (chroma_subsampling.hpp). A pixel is
   // used only if the kernel-weighted bound over its support, (bound ⊗ K)(p), is at most max_sharp_error: its mixture
@@ -187,6 +202,7 @@ struct CrfPixelAccounting {
   int low_weight = 0;  // not an edge: W = 0 (Eq. 23/24) or B's local range ≤ edge_threshold
   int subsampled = 0;  // usable but dropped by max_pixels
   int used = 0;
+  int censored_clipped = 0;  // B clipped, used as censored observations (CrfFitOptions::censored_weight)
   cv::Mat used_mask;   // CV_8U, 255 at used pixels
 };
 
