@@ -514,7 +514,8 @@ const CommandRegistration registration(
       command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--chroma-model", args->chroma_model,
                          "auto: a sharp JPEG with subsampled chroma (4:2:0, 4:2:2) fits R and B only where its lost "
-                         "chroma detail is small (better on the demo pair, not on average: docs/RESULTS.md#chroma); "
+                         "chroma detail is small (B better on the demo pair and every semi-real scene, R worse on one of three: "
+                         "docs/RESULTS.md#chroma-floor); "
                          "off: the pointwise model everywhere")
           ->capture_default_str()
           ->check(CLI::IsMember({"auto", "off"}));

@@ -37,6 +37,30 @@ TEST(ChromaErrorBound, ZeroWithoutSubsamplingAndOnLumaEdges) {
   EXPECT_THROW(chromaErrorBound(bgr, {2, 2}, "X"), InvalidInput);
 }
 
+// A level bin the bound empties (fewer than 5 % kept) keeps the 25 % of its candidates with the smallest bound; a
+// bin keeping more keeps the plain threshold; non-candidates are never marked.
+TEST(ChromaExclusion, EmptiedLevelBinKeepsLeastAffectedPixels) {
+  cv::Mat level(10, 20, CV_64F), bound(10, 20, CV_64F);
+  for (int y = 0; y < 10; ++y)
+    for (int x = 0; x < 20; ++x) {
+      level.at<double>(y, x) = x < 10 ? 0.2 : 0.9;  // two level bins
+      // left: half the bin under the threshold; right: every pixel above it, all bounds distinct
+      bound.at<double>(y, x) = x < 10 ? (x < 5 ? 0.0 : 1.0) : 0.5 + 0.01 * (x - 10) + 0.001 * y;
+    }
+  cv::Mat candidates(10, 20, CV_8U, cv::Scalar(255));
+  candidates(cv::Rect(0, 0, 20, 1)).setTo(0);  // row 0: not usable
+  const cv::Mat plain = excludedByErrorBound(bound, level, candidates, 0.1, LevelFloor{16, 0.0, 0.25});
+  EXPECT_EQ(cv::countNonZero(plain), 9 * 5 + 9 * 10);  // no floor: every candidate above 0.1
+  const cv::Mat floored = excludedByErrorBound(bound, level, candidates, 0.1);
+  EXPECT_EQ(cv::countNonZero(floored(cv::Rect(0, 0, 10, 10))), 9 * 5);  // left bin not emptied: plain threshold
+  const int kept_right = 90 - cv::countNonZero(floored(cv::Rect(10, 0, 10, 10)));
+  EXPECT_EQ(kept_right, 23);                        // ceil(0.25 × 90)
+  EXPECT_EQ(floored.at<std::uint8_t>(1, 10), 0);    // the smallest bound of the bin is kept
+  EXPECT_EQ(floored.at<std::uint8_t>(9, 19), 255);  // the largest is not
+  EXPECT_EQ(cv::countNonZero(floored.row(0)), 0);
+  EXPECT_THROW(excludedByErrorBound(bound, level, candidates, 0.1, LevelFloor{16, 0.05, 1.5}), InvalidInput);
+}
+
 std::vector<double> demoTruth() {
   std::ifstream in(test::samples() / "pairs" / "truth.json");
   return nlohmann::json::parse(in).at("inverse_crf").get<std::vector<double>>();

@@ -1,6 +1,8 @@
 #include "crfcal/chroma_subsampling.hpp"
 
 #include <algorithm>
+#include <cmath>
+#include <cstdint>
 #include <utility>
 #include <vector>
 
@@ -79,6 +81,41 @@ cv::Mat chromaErrorBound(const cv::Mat& bgr, ChromaSubsampling sampling, const s
   cv::resize(range, full, cv::Size(pw, ph), 0, 0, cv::INTER_NEAREST);
   full(cv::Rect(0, 0, bgr.cols, bgr.rows)).copyTo(bound);
   return bound;
+}
+
+cv::Mat excludedByErrorBound(const cv::Mat& weighted_bound, const cv::Mat& level, const cv::Mat& candidates,
+                             double max_error, const LevelFloor& floor) {
+  if (weighted_bound.type() != CV_64F || level.type() != CV_64F || candidates.type() != CV_8U ||
+      level.size() != weighted_bound.size() || candidates.size() != weighted_bound.size())
+    throw InvalidInput("error bound exclusion: bound and level CV_64F, candidates CV_8U, all of one size");
+  floor.check();
+  const int bins = floor.bins;
+  const auto binOf = [&](int y, int x) { return std::clamp(static_cast<int>(level.at<double>(y, x) * bins), 0, bins - 1); };
+  std::vector<std::vector<double>> bounds(bins);
+  for (int y = 0; y < level.rows; ++y)
+    for (int x = 0; x < level.cols; ++x)
+      if (candidates.at<std::uint8_t>(y, x)) bounds[binOf(y, x)].push_back(weighted_bound.at<double>(y, x));
+  std::vector<double> threshold(bins, max_error);
+  for (int b = 0; b < bins; ++b) {
+    std::vector<double>& v = bounds[b];
+    const auto kept = std::count_if(v.begin(), v.end(), [&](double e) { return e <= max_error; });
+    const auto keep = static_cast<std::size_t>(std::ceil(floor.refilled_fraction * v.size()));
+    if (v.empty() || kept >= floor.emptied_fraction * v.size() || keep == 0) continue;
+    std::nth_element(v.begin(), v.begin() + (keep - 1), v.end());
+    threshold[b] = std::max(max_error, v[keep - 1]);
+  }
+  cv::Mat excluded = cv::Mat::zeros(level.size(), CV_8U);
+  for (int y = 0; y < level.rows; ++y)
+    for (int x = 0; x < level.cols; ++x)
+      if (candidates.at<std::uint8_t>(y, x) && weighted_bound.at<double>(y, x) > threshold[binOf(y, x)])
+        excluded.at<std::uint8_t>(y, x) = 255;
+  return excluded;
+}
+
+void LevelFloor::check() const {
+  if (bins < 1 || bins > 1024 || !(emptied_fraction >= 0 && emptied_fraction <= 1) ||
+      !(refilled_fraction >= 0 && refilled_fraction <= 1))
+    throw InvalidInput("error bound level floor: bins 1..1024, fractions in [0, 1]");
 }
 
 }  // namespace crfcal

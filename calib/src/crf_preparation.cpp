@@ -9,6 +9,7 @@
 
 #include "crf_censored.hpp"
 #include "crfcal/blur_model.hpp"
+#include "crfcal/chroma_subsampling.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
 #include "crfcal/noise_estimation.hpp"
@@ -80,16 +81,16 @@ cv::Mat saturationMask(const Prepared& prep, const cv::Mat& interior, const CrfF
 }
 
 // Pixels whose mixture φ(I) ⊗ K may be off by more than max_sharp_error (CrfFitOptions::sharp_error_bound, weighted
-// by the kernel), inside the interior and not already saturated.
-cv::Mat unmodelledMask(const Prepared& prep, const cv::Mat& interior, const cv::Mat& saturated,
+// by the kernel), among the candidates (inside the interior, not saturated, weight > 0), with a floor of kept pixels
+// per level of I (sharp_error_floor; chroma_subsampling.hpp excludedByErrorBound).
+cv::Mat unmodelledMask(const Prepared& prep, const cv::Mat& interior, const cv::Mat& saturated, const cv::Mat& weight,
                        const CrfFitOptions& options) {
   if (options.sharp_error_bound.empty()) return cv::Mat::zeros(interior.size(), CV_8U);
   if (options.sharp_error_bound.size() != interior.size() || options.sharp_error_bound.type() != CV_32F)
     throw InvalidInput("fit options: sharp_error_bound must be a CV_32F map of the pair's size");
-  cv::Mat out = convolve(options.sharp_error_bound, prep.kernel) > options.max_sharp_error;
-  out &= interior;
-  out &= ~saturated;
-  return out;
+  const cv::Mat candidates = interior & ~saturated & (weight > 0);
+  return excludedByErrorBound(convolve(options.sharp_error_bound, prep.kernel), prep.sharp_used, candidates,
+                              options.max_sharp_error, options.sharp_error_floor);
 }
 
 // The selection weight of every pixel: seed Eq. 23 (Γ = B − I ⊗ K > τ1, r = 1) or Eq. 24 (I's local range > τ2,
@@ -205,10 +206,11 @@ Prepared preparePair(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat
   acc.saturated = cv::countNonZero(bad);
   if (acc.saturated > 0 && acc.saturated == cv::countNonZero(interior))
     throw InvalidInput("fit: every pixel is saturated or censored (in B or I, dilated by the kernel support)");
-  const cv::Mat unmodelled = unmodelledMask(prep, interior, bad, options);
+  const cv::Mat weight = selectionWeight(prep, options);
+  const cv::Mat unmodelled = unmodelledMask(prep, interior, bad, weight, options);
   acc.unmodelled = cv::countNonZero(unmodelled);
   bad |= unmodelled;
-  selectPixels(prep, inside, bad, selectionWeight(prep, options), options, acc);
+  selectPixels(prep, inside, bad, weight, options, acc);
   selectCensoredPixels(prep, inside, unmodelled, options, acc);
   return prep;
 }

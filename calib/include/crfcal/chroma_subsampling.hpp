@@ -39,4 +39,25 @@ struct ChromaDetailOptions {
 cv::Mat chromaErrorBound(const cv::Mat& bgr, ChromaSubsampling sampling, const std::string& channel,
                          const ChromaDetailOptions& options = {});
 
+// The floor of the exclusion below: a level range the bound (nearly) empties keeps its least affected pixels.
+// Why: where chroma detail is large at every edge of some level range — measured on a dark scene with saturated
+// colours (IMG_2601, Sony curve, levin:3), the bound kept 0 of the 2,537 B edge pixels above level 0.75 — dropping
+// them all leaves φ extrapolated there, and as φ(1) = 1 a wrong top scales the whole curve (φ_B RMSE 0.24, the
+// shape over the covered range right: 0.009 after the best scale). Refilling every bin to a fixed share instead
+// re-admits biased pixels where the bound is right (demo pair, 25 % in every bin: B 0.024 → 0.063).
+// Chosen on the demo pair and that case (RESULTS#chroma): emptied 5 %, refilled 25 %.
+struct LevelFloor {
+  int bins = 16;                   // equal bins of I's level over [0, 1]
+  double emptied_fraction = 0.05;  // a bin keeping fewer than this share of its candidates is emptied ...
+  double refilled_fraction = 0.25; // ... and keeps this share instead: its candidates of smallest bound
+  void check() const;              // throws InvalidInput
+};
+
+// The candidates left out of a fit by a kernel-weighted error bound (CrfFitOptions::sharp_error_bound): those whose
+// weighted_bound exceeds max_error, except in a level bin the floor refills, whose threshold is raised to keep
+// floor.refilled_fraction of it. weighted_bound, level (in [0, 1]): CV_64F; candidates: CV_8U, non-zero where a
+// pixel could be used. Returns CV_8U, 255 at excluded candidates. Wrong types or sizes → InvalidInput.
+cv::Mat excludedByErrorBound(const cv::Mat& weighted_bound, const cv::Mat& level, const cv::Mat& candidates,
+                             double max_error, const LevelFloor& floor = {});
+
 }  // namespace crfcal

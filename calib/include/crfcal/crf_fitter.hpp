@@ -33,6 +33,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "crfcal/chroma_subsampling.hpp"
 #include "crfcal/noise_debias.hpp"
 #include "crfcal/response_model.hpp"
 
@@ -141,6 +142,9 @@ struct CrfFitOptions {
   // 4 levels of 8 bits. Measured on the demo pair (RESULTS#chroma): 2 levels leave too few R pixels (R 0.043), 8 too
   // many chroma edges (B 0.073); the oracle (true error) at 4 levels: R 0.011, B 0.026.
   double max_sharp_error = 4.0 / 255;
+  // With sharp_error_bound: a level range of I the bound (nearly) empties keeps its least affected pixels, so that φ is
+  // not extrapolated there (chroma_subsampling.hpp LevelFloor; measured: RESULTS#chroma).
+  LevelFloor sharp_error_floor;
   int max_evaluations = 1000;  // per Nelder–Mead run / LM iterations × 10
   int min_pixels = 200;        // fewer usable pixels: the pair has no edges → InvalidInput
   int max_pixels = 0;          // deterministic subsample above this (0: all pixels)
