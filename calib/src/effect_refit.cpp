@@ -1,13 +1,11 @@
 // The pair corrected by an extended model and φ refitted (fitInverseCrf): what the effect search moves φ with, and
 // where the reported φ of a detected effect comes from (effects.hpp).
 #include <algorithm>
-#include <exception>
 
 #include "crfcal/error.hpp"
 #include "crfcal/level_mixture.hpp"
 #include "crfcal/noise_estimation.hpp"
 #include "effect_problem.hpp"
-#include "parallel_jobs.hpp"
 
 namespace crfcal::effect {
 
@@ -92,9 +90,8 @@ std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const 
   }
   for (const LevelEffect* effect : levelEffects())
     if (effect->in(spec)) effect->correct(pair);
-  // The channels' refits are independent: one per core (the same fits as a serial loop's).
-  std::vector<CrfFitResult> refits(static_cast<std::size_t>(nc));
-  const std::vector<std::exception_ptr> errors = detail::runInParallel(nc, [&](int c) {
+  std::map<std::string, CrfFitResult> fits;
+  for (int c = 0; c < nc; ++c) {
     const cv::Mat Bc = store(ext[c].curve.forward(cv::max(cv::min(pair.Y[c], 1.0), 0.0)), search.p.depth[c]);
     const cv::Mat& Ic = pair.sharp[c];
     CrfFitOptions& fo = pair.fit_options[c];
@@ -102,18 +99,12 @@ std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const 
       const int L = std::max(naturalLevels(Ic), naturalLevels(Bc));  // the fitter's level grid
       fo.noise_sigma_per_level = noiseSigmaPerLevel(search.noise_level[c], search.noise_sigma[c], L);
     }
-    refits[c] = with_blur ? perTileFit(search, Ic, Bc, fo) : fitInverseCrf(Ic, Bc, search.K, fo);
-  });
-  std::map<std::string, CrfFitResult> fits;
-  for (int c = 0; c < nc; ++c) {
-    if (errors[c]) {
-      try {
-        std::rethrow_exception(errors[c]);
-      } catch (const InvalidInput&) {
-        return {};  // a channel without a usable refit: no refit of the pair
-      }
+    try {
+      fits[in.channels[c]] = with_blur ? perTileFit(search, Ic, Bc, fo) : fitInverseCrf(Ic, Bc, search.K, fo);
+    } catch (const InvalidInput&) {
+      fits.clear();
+      break;
     }
-    fits[in.channels[c]] = std::move(refits[c]);
   }
   return fits;
 }
