@@ -59,7 +59,7 @@ struct MomentFitter {
                                     options.prior_energy_factor);
   }
 
-  // EMoR from its linear least-squares start. With the ratio prior: first what the images alone say, then the
+  // EMoR from its linear least-squares start (or CrfFitOptions::start). With the ratio prior: first what the images alone say, then the
   // same fit with the prior (every later fit, the cross-validation's too, carries it).
   ModelFit fitEmor(MomentSystem& full) {
     std::vector<std::vector<double>> starts;  // empty: the linear least-squares starts
