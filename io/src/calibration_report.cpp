@@ -236,15 +236,20 @@ json curveComparisonJson(const CurveComparison& comparison) {
   return out;
 }
 
-CalibrationReport calibrationReport(const PairCalibrationResult& result, const CalibrationReportContext& context) {
+CalibrationReport curveFitsReport(const std::map<std::string, CrfFitResult>& fits) {
   CalibrationReport report;
   report.command = "calibrate";
-  report.timings = result.timings;
-  for (const auto& [name, fit] : result.fits) {
+  for (const auto& [name, fit] : fits) {
     report.inverse_crf[name] = fit.inverse_crf;
     report.models[name] = fit.model;
     report.pixels_used[name] = fit.pixels.used;
   }
+  return report;
+}
+
+CalibrationReport calibrationReport(const PairCalibrationResult& result, const CalibrationReportContext& context) {
+  CalibrationReport report = curveFitsReport(result.fits);
+  report.timings = result.timings;
   report.nominal_ratio = context.nominal_ratio;
   report.nominal_ratio_source = context.nominal_ratio_source;
   report.fitted_ratio = result.fits.at("G").ratio;

@@ -12,14 +12,8 @@ CalibrationReport jointCalibrationReport(const JointCalibrationResult& joint,
                                          const std::vector<CalibrationReportContext>& contexts) {
   if (results.size() != joint.pairs.size() || contexts.size() != joint.pairs.size())
     throw Error("joint report: one result and one context per pair expected");
-  CalibrationReport report;
-  report.command = "calibrate";
+  CalibrationReport report = curveFitsReport(joint.fits);
   report.timings = joint.timings;
-  for (const auto& [name, fit] : joint.fits) {
-    report.inverse_crf[name] = fit.inverse_crf;
-    report.models[name] = fit.model;
-    report.pixels_used[name] = fit.pixels.used;
-  }
   report.covered_range = joint.covered_range;
   report.warnings = joint.warnings;
   json pairs = json::array();

@@ -5,6 +5,7 @@
 // Calibrate's keys beyond report.hpp's common ones: "input", "exposure_ratio_factors" (EXIF), "exposure_ratio_mode",
 // "exposure_ratio_per_channel", "exposure_ratio_prior", "ambiguity_rise", "kernel", "registration", "rounds",
 // "fit_window", "fit", "phi_base_model" (the fits before an effect's model replaced them), "raw_truth".
+#include <map>
 #include <optional>
 #include <string>
 
@@ -38,6 +39,9 @@ struct CalibrationReportContext {
   double ratio_prior_sigma = 0;       // σ of the prior on log r around nominal_ratio (0 or fixed r: no prior)
   const RawTruthReport* raw_truth = nullptr;
 };
+
+// A `calibrate` report's curves: per channel φ, its model and the pixels used (single pair and joint fits alike).
+CalibrationReport curveFitsReport(const std::map<std::string, CrfFitResult>& fits);
 
 // The report of one calibration (timings: the result's stages; the command adds its own before writing).
 CalibrationReport calibrationReport(const PairCalibrationResult& result, const CalibrationReportContext& context);
