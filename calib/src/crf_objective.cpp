@@ -120,16 +120,20 @@ void accumulateSquaredMasses(const Prepared& prep, const std::vector<Tap>& taps,
   const int L = prep.levels;
   const int npix = static_cast<int>(prep.pixels.size());
   const bool sharp_frac = !prep.sharp.frac.empty();
-  std::vector<int> order(npix);
-  std::iota(order.begin(), order.end(), 0);
-  auto keyOf = [&](int i) { return bin_of[i] * 2 + foldOf(prep.pixels[i]); };
-  std::sort(order.begin(), order.end(), [&](int a, int b) {
-    const int ka = keyOf(a), kb = keyOf(b);
-    return ka != kb ? ka < kb : a < b;
-  });
-  std::vector<int> group_start{0};
-  for (int j = 1; j < npix; ++j)
-    if (keyOf(order[j]) != keyOf(order[j - 1])) group_start.push_back(j);
+  // Pixels ordered by (key, index), key = (bin, fold): a counting sort (stable, so each group keeps the pixels'
+  // order, and every sum below adds in the same order as a comparison sort by (key, index) would).
+  std::vector<int> key(npix), first_of_key(2 * bins + 1, 0);
+  for (int i = 0; i < npix; ++i) {
+    key[i] = bin_of[i] * 2 + foldOf(prep.pixels[i]);
+    ++first_of_key[key[i] + 1];
+  }
+  std::partial_sum(first_of_key.begin(), first_of_key.end(), first_of_key.begin());
+  std::vector<int> order(npix), next = first_of_key;
+  for (int i = 0; i < npix; ++i) order[next[key[i]]++] = i;
+  auto keyOf = [&](int i) { return key[i]; };
+  std::vector<int> group_start;
+  for (int k = 0; k < 2 * bins; ++k)
+    if (first_of_key[k + 1] > first_of_key[k]) group_start.push_back(first_of_key[k]);
   group_start.push_back(npix);
   const int groups = static_cast<int>(group_start.size()) - 1;
   std::vector<Eigen::MatrixXd> qacc(stripes);
