@@ -162,6 +162,22 @@ TEST(ChannelVerdict, RefitOutcomeIsReportedAsANote) {
   EXPECT_TRUE(mentions(r, "base fit is reported")) << r.summary();
 }
 
+TEST(ChannelVerdict, WideShapeBandIsWeakAndANarrowOneIsReported) {
+  ChannelEvidence e = clean();
+  e.shape_band_sigma = 0.004;  // inside issue 17's 0.01
+  ChannelVerdict v = judgeOne(e);
+  EXPECT_EQ(v.level, VerdictLevel::ok) << v.summary();
+  EXPECT_TRUE(mentions(v, "shape band sigma 0.004")) << v.summary();
+  e.shape_band_sigma = 0.025;
+  v = judgeOne(e);
+  EXPECT_EQ(v.level, VerdictLevel::weak) << v.summary();
+  EXPECT_TRUE(mentions(v, "median sigma 0.025")) << v.summary();
+  e.shape_band_sigma = -1;  // no band: no ground, no mention
+  v = judgeOne(e);
+  EXPECT_EQ(v.level, VerdictLevel::ok) << v.summary();
+  EXPECT_FALSE(mentions(v, "band")) << v.summary();
+}
+
 TEST(ChannelVerdict, WorstLevelAndOptionChecks) {
   ChannelEvidence bad = clean("B");
   bad.ratio = 0.5;
@@ -173,6 +189,9 @@ TEST(ChannelVerdict, WorstLevelAndOptionChecks) {
   EXPECT_THROW(o.check(), InvalidInput);
   o = {};
   o.max_flat_fraction = 0;
+  EXPECT_THROW(o.check(), InvalidInput);
+  o = {};
+  o.max_shape_sigma = 0;
   EXPECT_THROW(o.check(), InvalidInput);
 }
 

@@ -72,6 +72,35 @@ TEST(CurveBand, ShapeBandCoversAtTheNominalRateAndFailsWhenTheSpreadIsUnderstate
   EXPECT_LT(shapeCoverage(1.0 / 3), 0.6);
 }
 
+// The verdict's reading of a band (medianShapeSigma): the median half-width over the covered range divided by the
+// band's t quantile, so it scales with the replicates' spread and is 0 without one; the benches' median width is
+// twice the same median.
+CurveBand bandWithSpread(double amplitude) {
+  const std::vector<double> fit = gammaCurve(2.2);
+  CurveBandOptions options;
+  options.include_model_spread = false;
+  std::vector<std::vector<double>> replicates;
+  for (int r = 0; r < 8; ++r) {
+    auto rep = fit;
+    const double sign = r % 2 ? 1.0 : -1.0, k = 1 + r / 2;  // four shapes, each with both signs
+    for (int i = 0; i < kCurveSamples; ++i) rep[i] += sign * amplitude * std::sin(k * M_PI * i / (kCurveSamples - 1));
+    replicates.push_back(rep);
+  }
+  return bandFromReplicates(fit, replicates, {0.25, 0.75}, options);
+}
+
+TEST(CurveBand, MedianShapeSigmaScalesWithTheReplicatesSpread) {
+  const CurveBand narrow = bandWithSpread(0.003), wide = bandWithSpread(0.012);
+  EXPECT_GT(medianShapeSigma(narrow), 0.0005);
+  EXPECT_LT(medianShapeSigma(narrow), 0.003);
+  EXPECT_NEAR(medianShapeSigma(wide) / medianShapeSigma(narrow), 4.0, 0.1);
+  EXPECT_NEAR(medianShapeHalfWidth(wide) / medianShapeSigma(wide), studentQuantile(0.95, 8), 1e-12);
+  const std::vector<double> fit = gammaCurve(2.2);
+  EXPECT_DOUBLE_EQ(scoreBand(wide, fit, fit).median_shape_width_inside, 2 * medianShapeHalfWidth(wide));
+  EXPECT_EQ(medianShapeSigma(bandWithSpread(0)), 0.0);
+  EXPECT_EQ(medianShapeSigma(CurveBand{}), 0.0);
+}
+
 TEST(CurveBand, AboveTheDataTheBandBoundsTheExponentAndHoldsTheFit) {
   const std::vector<double> phi = gammaCurve(2.2);
   const CurveBand band = bandFromReplicates(phi, {}, {0.05, 0.6});

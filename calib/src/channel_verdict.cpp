@@ -32,6 +32,7 @@ void VerdictOptions::check() const {
   if (!(flat_local_exponent >= 0)) throw InvalidInput("verdict: flat_local_exponent must be >= 0");
   if (!(max_flat_fraction > 0 && max_flat_fraction <= 1)) throw InvalidInput("verdict: max_flat_fraction in (0, 1]");
   if (!(flat_slope_fraction >= 0 && flat_slope_fraction < 1)) throw InvalidInput("verdict: flat_slope_fraction in [0, 1)");
+  if (!(max_shape_sigma > 0)) throw InvalidInput("verdict: max_shape_sigma must be > 0");
 }
 
 std::string ChannelVerdict::summary() const {
@@ -150,6 +151,10 @@ void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
     j.find(VerdictLevel::weak, format("the data cover intensities %.2f-%.2f only (span < %.2g): phi is mostly "
                                       "extrapolated",
                                       lo, hi, o.min_covered_span));
+  if (e.shape_band_sigma > o.max_shape_sigma)
+    j.find(VerdictLevel::weak, format("the band of phi's shape over the covered range is wide (median sigma %.3f > %.2g): "
+                                      "the pair does not fix the curve's shape to that accuracy",
+                                      e.shape_band_sigma, o.max_shape_sigma));
   if (e.inverse_crf.size() < 2) return;
   const double flat = flatFraction(e.inverse_crf, *e.covered, o);
   if (flat >= o.max_flat_fraction)
@@ -204,6 +209,7 @@ std::string passedNote(const ChannelEvidence& e, const VerdictOptions& o) {
             format(" %.3g", e.nominal_ratio);
   if (e.brightness_ratio > 0) text += format(", consistent with the shots' brightness ratio %.3g", e.brightness_ratio);
   if (e.covered) text += format("; data cover %.2f-%.2f", e.covered->first, e.covered->second);
+  if (e.shape_band_sigma >= 0) text += format(", shape band sigma %.3f there", e.shape_band_sigma);
   return text;
 }
 

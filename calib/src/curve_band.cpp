@@ -188,14 +188,44 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
   return band;
 }
 
+namespace {
+
+// The upper median (the benches' convention since the band's first table).
+double upperMedian(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+// Sample indices [i0, i1] of the band's covered range.
+std::pair<int, int> coveredSamples(const CurveBand& band, int n) {
+  const int i0 = sampleIndex(band.covered.first, n);
+  return {i0, std::max(sampleIndex(band.covered.second, n), i0 + 1)};
+}
+
+}  // namespace
+
+double medianShapeHalfWidth(const CurveBand& band) {
+  const int n = static_cast<int>(band.shape_half_width.size());
+  if (n < 2) return 0;
+  const auto [i0, i1] = coveredSamples(band, n);
+  return upperMedian(std::vector<double>(band.shape_half_width.begin() + i0,
+                                         band.shape_half_width.begin() + std::min(i1, n - 1) + 1));
+}
+
+double medianShapeSigma(const CurveBand& band) {
+  const double dof = band.replicates >= 2 ? static_cast<double>(band.replicates) : 0.0;  // 0: the normal quantile
+  return medianShapeHalfWidth(band) / studentQuantile(0.5 + band.level / 2, dof);
+}
+
 BandScore scoreBand(const CurveBand& band, const std::vector<double>& phi, const std::vector<double>& truth) {
   const int n = static_cast<int>(band.lower.size());
   if (n < 16 || static_cast<int>(phi.size()) != n || static_cast<int>(truth.size()) != n)
     throw InvalidInput("band score: band, curve and truth need the same number of samples", ErrorSubject::curve);
-  const int i0 = sampleIndex(band.covered.first, n), i1 = std::max(sampleIndex(band.covered.second, n), i0 + 1);
+  const auto [i0, i1] = coveredSamples(band, n);
   BandScore score;
   score.truth_scale = alignmentFactor(phi, truth, i0, i1);
-  std::vector<double> widths, shape_widths;
+  std::vector<double> widths;
   for (int i = 0; i < n; ++i) {
     const bool hit = truth[i] >= band.lower[i] - 1e-12 && truth[i] <= band.upper[i] + 1e-12;
     if (i < i0) {
@@ -206,15 +236,10 @@ BandScore scoreBand(const CurveBand& band, const std::vector<double>& phi, const
       ++score.inside, score.inside_hits += hit;
       score.shape_hits += std::abs(score.truth_scale * truth[i] - phi[i]) <= band.shape_half_width[i] + 1e-12;
       widths.push_back(band.upper[i] - band.lower[i]);
-      shape_widths.push_back(2 * band.shape_half_width[i]);
     }
   }
-  auto median = [](std::vector<double>& v) {
-    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-    return v[v.size() / 2];
-  };
-  score.median_width_inside = median(widths);
-  score.median_shape_width_inside = median(shape_widths);
+  score.median_width_inside = upperMedian(widths);
+  score.median_shape_width_inside = 2 * medianShapeHalfWidth(band);
   return score;
 }
 

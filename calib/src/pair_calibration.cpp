@@ -79,8 +79,9 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   detail::fitKernelPhiRounds(state);
   if (options.effects.enabled) detail::diagnoseResidualEffects(state);
   detail::combineRatioWithNominal(state);
-  detail::computeVerdict(state);
+  detail::summariseFits(state);
   if (options.band.replicates > 0) detail::estimateBands(state);
+  detail::computeVerdict(state);
   if (options.keep_fit_inputs) {
     PairFitInputs& inputs = state.result.fit_inputs;
     inputs.sharp = std::move(state.window_sharp);

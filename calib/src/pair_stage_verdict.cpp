@@ -1,7 +1,9 @@
 // Stage "verdict" of calibratePair: the diagnostic maps on G (the blur inconsistency Γ of Sec. 3, the fit's
 // weights), the warnings a user acts on — a small blur (r weakly determined or held), kernels that disagree
 // across the frame, few edge pixels, an underexposed sharp shot, data that cover only part of the intensities — and
-// the verdict per channel (channel_verdict.hpp), with the shots' brightness ratio it needs.
+// the verdict per channel (channel_verdict.hpp), with the shots' brightness ratio it needs. Two calls: summariseFits
+// before the band stage (the band is built over the covered ranges set here), computeVerdict after it (the band's
+// shape width is one of the verdict's grounds).
 #include <algorithm>
 #include <cstdio>
 #include <string>
@@ -12,6 +14,7 @@
 
 #include "crfcal/blur_model.hpp"
 #include "crfcal/channel_verdict.hpp"
+#include "crfcal/curve_band.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/exposure_fit.hpp"
 #include "crfcal/kernel.hpp"
@@ -172,6 +175,8 @@ void judgeChannelsOfPair(PairCalibrationState& state) {
     const double brightness = brightnessRatio(state, name);
     if (brightness > 0) result.brightness_ratio[name] = e.brightness_ratio = brightness;
     if (result.covered_range.count(name)) e.covered = result.covered_range.at(name);
+    if (const auto band = result.bands.find(name); band != result.bands.end() && !band->second.empty())
+      e.shape_band_sigma = medianShapeSigma(band->second);
     e.inverse_crf = fit.inverse_crf;
     const auto& modelled = result.chroma_model_channels;
     if (name != "G" && options.sharp_stored_chroma.subsampled() &&
@@ -190,11 +195,12 @@ void judgeChannelsOfPair(PairCalibrationState& state) {
 
 }  // namespace
 
-void computeVerdict(PairCalibrationState& state) {
+void summariseFits(PairCalibrationState& state) {
   diagnosticMaps(state);
   blurWarnings(state);
   for (const auto& [name, fit] : state.result.fits) channelWarnings(state, name, fit);
-  judgeChannelsOfPair(state);
 }
+
+void computeVerdict(PairCalibrationState& state) { judgeChannelsOfPair(state); }
 
 }  // namespace crfcal::detail

@@ -148,7 +148,9 @@ void combineRatioWithNominal(PairCalibrationState& state);
 // ---- effects (pair_stage_effects.cpp)
 void diagnoseResidualEffects(PairCalibrationState& state);
 
-// ---- verdict (pair_stage_verdict.cpp)
+// ---- verdict (pair_stage_verdict.cpp): the fits' diagnostic maps, warnings and covered ranges (before the band,
+// which is built over those ranges), then the verdict per channel (after it: the band's width is one of its grounds)
+void summariseFits(PairCalibrationState& state);
 void computeVerdict(PairCalibrationState& state);
 // The shots' brightness ratio in channel `name` over the fit window (quantile matching with the EMoR mean curve, as
 // `crfcal study ratio`); 0 when too few usable levels.

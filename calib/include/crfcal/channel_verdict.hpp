@@ -16,6 +16,8 @@
 //    channel; a channel outside a band of ±max_channel_ratio_spread/2 (in log) around the channels' median r → weak.
 //  * the covered range: data spanning less than min_covered_span of the intensities → weak (φ is mostly
 //    extrapolated).
+//  * the band (curve_band.hpp): its median shape σ over the covered range above max_shape_sigma → weak (the data do
+//    not fix φ's shape to the accuracy a calibration is for; issue 19 asks the verdict to use the band's width).
 //  * a flat fit: φ's local exponent d log φ / d log x below flat_local_exponent (or φ ≤ 0) over at least
 //    max_flat_fraction of the covered range → unreliable (no real inverse response is nearly constant over data).
 //  * the effect diagnostics' refit (effect_refit_guard.cpp): adopted only when plausible and no worse than the base
@@ -67,6 +69,12 @@ struct VerdictOptions {
   double flat_slope_fraction = 0.1;
   // Fraction of the covered span over which a flat φ makes the channel unreliable (a tenth: more than a local dip).
   double max_flat_fraction = 0.1;
+  // Largest median σ of the band's shape over the covered range (curve_band.hpp medianShapeSigma: the half-sample
+  // spread and the model term, φ's scale aligned) for an "ok": issue 17's accuracy target for φ's shape over the
+  // covered range, RMSE ≤ 0.01 after the best common scale. A band wider than that says the pair does not determine
+  // the shape to the accuracy asked of it. Derived from the target, not fitted to any pair; measured on the benches
+  // and the phone pairs in docs/RESULTS.md#verdict.
+  double max_shape_sigma = 0.01;
   void check() const;  // throws InvalidInput
 };
 
@@ -100,6 +108,7 @@ struct ChannelEvidence {
   double brightness_ratio = 0;               // the shots' brightness ratio (quantile matching, EMoR mean curve); ≤ 0: not measured
   std::optional<std::pair<double, double>> covered;  // intensities the data constrain
   std::vector<double> inverse_crf;     // φ(i/(n−1)) as reported
+  double shape_band_sigma = -1;        // the band's median shape σ over the covered range (medianShapeSigma); < 0: no band
   // R or B fitted by the pointwise model from a sharp shot whose JPEG chroma is subsampled (e.g. "4:2:0"; empty:
   // not the case). Its R and B at edges are rebuilt from chroma averaged over blocks after the tone curve; measured
   // on the bundled demo pair: φ_B 0.133 and φ_R 0.028 against G 0.0049 (docs/RESULTS.md#chroma) → weak.

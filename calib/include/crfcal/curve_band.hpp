@@ -86,6 +86,12 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
                              std::pair<double, double> covered, const CurveBandOptions& options = {},
                              const std::vector<std::vector<double>>& alternatives = {});
 
+// The shape band's median half-width over its covered range, and that half-width as a standard deviation (divided by
+// the band's t quantile at its level and number of refits; the normal quantile without refits). What a verdict can
+// compare with an accuracy target of φ's shape (channel_verdict.hpp). 0 for an empty band.
+double medianShapeHalfWidth(const CurveBand& band);
+double medianShapeSigma(const CurveBand& band);
+
 // Refits of φ on `replicates` half-samples of the blocks (side max(block_size, twice the kernel's side)) holding
 // `used_mask`'s pixels, in complementary pairs, with the same images, kernel and fit options
 // (CrfFitOptions::pixel_selection). For a half-sample Var(θ_half − θ_full) ≈ Var(θ_full), so the refits' deviations
