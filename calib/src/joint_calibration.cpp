@@ -117,6 +117,8 @@ void judgeJoint(JointCalibrationResult& result, const JointCalibrationOptions& o
     e.ratio = 1;
     e.ratio_fixed = true;
     e.covered = result.covered_range.at(c);
+    if (const auto band = result.bands.find(c); band != result.bands.end() && !band->second.empty())
+      e.shape_band_sigma = medianShapeSigma(band->second);
     e.inverse_crf = result.fits.at(c).inverse_crf;
     evidence.push_back(e);
   }
