@@ -175,9 +175,6 @@ cv::Mat overlapMaskInSharp(cv::Size sharp_size, const cv::Mat& homography, cv::S
 
 namespace {
 
-// Step 1 of registerPair: AKAZE features, ratio-test matches and RANSAC (similarity for the Euclidean model, whose ECC
-// step drops the scale). Returns the working-scale homography sharp → blurred, or an empty matrix when the features do
-// not give a sane one; fills the keypoint, match and inlier counts and the method of `result`.
 // AKAZE keypoints and descriptors of one working copy, at most options.max_features (the strongest).
 void detectFeatures(const cv::Mat& image, const RegistrationOptions& options, std::vector<cv::KeyPoint>& keypoints,
                     cv::Mat& descriptors) {
@@ -189,6 +186,10 @@ void detectFeatures(const cv::Mat& image, const RegistrationOptions& options, st
   }
 }
 
+// Step 1 of registerPair: AKAZE features, ratio-test matches and RANSAC (similarity for the Euclidean model, whose ECC
+// step drops the scale). Returns the working-scale homography sharp → blurred, or an empty matrix when the features do
+// not give a sane one; fills the keypoint, match and inlier counts and the method of `result`.
+// The target's features come prepared (prepareRegistrationTarget).
 cv::Mat featureHomography(const cv::Mat& a, const RegistrationTarget& target, const RegistrationOptions& options,
                           RegistrationResult& result) {
   cv::Mat H;
