@@ -40,6 +40,13 @@ struct ReferencesBenchArgs {
   std::string json;
   bool force = false;
   bool quiet = false;
+  bool curves = false;
+  // The RAW truth's scale: one per camera and scene (the light changes the RAW-to-JPEG gain of R and B) or one per
+  // camera (before issue 21's second round).
+  std::string truth_scale = "scene";
+  // The shots' relative exposures from the RAW: neighbours' ratios over all patches, or each shot's greys against
+  // their published reflectances (before issue 21's second round).
+  std::string raw_exposures = "patches";  // the JSON also holds every method's curves and the truth's samples (for analysis)
 };
 
 // One scene of one camera: its 4 exposures (JPEG frames, their sampled patches) and the RAW-derived exposures.
@@ -76,11 +83,49 @@ std::vector<double> rawExposures(const std::vector<ChartShot>& shots) {
   return exposures;
 }
 
+// Relative exposure of each shot from its linear RAW patches alone: shots in order of the grey-based estimate
+// (rawExposures), each neighbour's ratio the median over the patches and channels usable and above the noise floor
+// in both of log(raw_next / raw), chained. Unlike rawExposures this needs no published reflectance: a patch whose
+// real reflectance differs from the published Y biases the greys' estimate of the shots in which it is usable
+// (the set of usable greys changes with the exposure), and that bias changes the exposure span, i.e. the exponent
+// every calibrator given these exposures recovers.
+std::vector<double> rawExposureRatios(const std::vector<ChartShot>& shots) {
+  const std::vector<double> by_greys = rawExposures(shots);
+  std::vector<size_t> order(shots.size());
+  for (size_t j = 0; j < order.size(); ++j) order[j] = j;
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return by_greys[a] < by_greys[b]; });
+  std::vector<double> exposures(shots.size(), 1.0);
+  constexpr double kFloor = 0.02;  // RAW values below this (unit scale) are left to the noise floor
+  for (size_t k = 1; k < order.size(); ++k) {
+    const ChartShot& dark = shots[order[k - 1]];
+    const ChartShot& bright = shots[order[k]];
+    std::vector<double> logs;
+    for (int p = 0; p < chart::kPatches; ++p) {
+      const chart::PatchStats& a = dark.raw[static_cast<size_t>(p)];
+      const chart::PatchStats& b = bright.raw[static_cast<size_t>(p)];
+      if (!a.usable() || !b.usable()) continue;
+      for (size_t c = 0; c < 3; ++c)
+        if (a.median[c] > kFloor && b.median[c] > kFloor) logs.push_back(std::log(b.median[c] / a.median[c]));
+    }
+    const double ratio = by_greys[order[k]] / by_greys[order[k - 1]];
+    if (logs.size() < 3) {  // too few patches in common: the greys' ratio
+      exposures[order[k]] = exposures[order[k - 1]] * ratio;
+      continue;
+    }
+    std::nth_element(logs.begin(), logs.begin() + long(logs.size() / 2), logs.end());
+    exposures[order[k]] = exposures[order[k - 1]] * std::exp(logs[logs.size() / 2]);
+  }
+  return exposures;
+}
+
 struct Method {
   std::string name;
   std::vector<double> error[3];   // shape error per case and channel
   std::vector<double> cpu_seconds, wall_seconds;
   int failed = 0;
+  // RGB mean shape error per case that has all three channels, split as `bench chart` splits the cameras: cameras
+  // 1, 3, 5, … in name order are where choices are made, 2, 4, 6, … where they are reported.
+  std::vector<double> rgb_choose, rgb_report;
 };
 
 // The range every method is scored on, per channel: the truth's covered range ∩ the range of the usable patch values
@@ -96,7 +141,7 @@ IntensityRange scoredRange(const SceneShots& scene, int c, IntensityRange truth_
 // Runs one method on one scene (timed) and records its three channels' shape errors.
 template <typename Calibrate>
 void runMethod(Method& method, const Calibrate& calibrate, const ChartCalibrationResult& truth, const SceneShots& scene,
-               nlohmann::json& row) {
+               bool choose_camera, nlohmann::json& row, bool with_curves) {
   const auto wall = std::chrono::steady_clock::now();
   const std::clock_t cpu = std::clock();
   std::vector<std::vector<double>> curves;
@@ -110,14 +155,18 @@ void runMethod(Method& method, const Calibrate& calibrate, const ChartCalibratio
   method.cpu_seconds.push_back(double(std::clock() - cpu) / CLOCKS_PER_SEC);
   method.wall_seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - wall).count());
   bool finite = true;
+  double sum = 0;
   for (int c = 0; c < 3; ++c) {
     const auto& t = truth.channels[static_cast<size_t>(c)].fit;
     const double e = shapeError(t.inverse, curves[static_cast<size_t>(c)], scoredRange(scene, c, t.covered_range));
     if (std::isfinite(e)) method.error[c].push_back(e);
     finite = finite && std::isfinite(e);
+    sum += e;
     row[method.name][channelName(c)] = std::isfinite(e) ? nlohmann::json(e) : nlohmann::json(nullptr);
   }
   method.failed += !finite;
+  if (finite) (choose_camera ? method.rgb_choose : method.rgb_report).push_back(sum / 3);
+  if (with_curves) row["curves"][method.name] = curves;
 }
 
 // `crfcal chart` (its default --reference all) on the scene's JPEG shots (patch sampling included in the time), with or without exposures.
@@ -139,8 +188,9 @@ std::vector<std::vector<double>> chartCurves(const SceneShots& scene, bool expos
   return curves;
 }
 
-std::vector<SceneShots> loadScenes(const fs::path& root, std::vector<ChartCalibrationResult>& truths,
-                                   std::vector<size_t>& truth_of, Progress& progress) {
+std::vector<SceneShots> loadScenes(const fs::path& root, bool truth_scale_per_scene, bool exposures_from_patches,
+                                   std::vector<ChartCalibrationResult>& truths, std::vector<size_t>& truth_of,
+                                   Progress& progress) {
   std::vector<SceneShots> scenes;
   const std::vector<std::string> cameras = io::listMiddleburyCameras(root);
   for (size_t i = 0; i < cameras.size(); ++i) {
@@ -164,9 +214,10 @@ std::vector<SceneShots> loadScenes(const fs::path& root, std::vector<ChartCalibr
     ChartCalibrationOptions truth_options;
     truth_options.use_raw = true;
     truth_options.raw_neutral_only = true;
+    truth_options.raw_scale_per_scene = truth_scale_per_scene;
     truths.push_back(calibrateChart(all, truth_options));
     for (auto& [id, scene] : by_scene) {
-      scene.exposures = rawExposures(scene.shots);
+      scene.exposures = exposures_from_patches ? rawExposureRatios(scene.shots) : rawExposures(scene.shots);
       scenes.push_back(std::move(scene));
       truth_of.push_back(i);
     }
@@ -181,8 +232,9 @@ nlohmann::json printTable(const std::vector<Method>& methods, size_t scenes, con
               "the camera's RAW->JPEG truth; exposure times for OpenCV (and 'exposures given') from the RAW greys\n",
               root.string().c_str(), scenes);
   std::printf("shape RMSE over the covered range (truth's ∩ the shots' patch values) after the best common factor\n");
-  std::printf("| method | R | G | B | RGB mean | R/G | B/G | failed | CPU s median | CPU s max | wall s median |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
+  std::printf("| method | R | G | B | RGB mean | RGB choose | RGB report | R/G | B/G | failed | CPU s median | CPU s max | "
+              "wall s median |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   nlohmann::json json = nlohmann::json::object();
   std::map<std::string, double> rgb;
   for (const Method& m : methods) {
@@ -191,9 +243,11 @@ nlohmann::json printTable(const std::vector<Method>& methods, size_t scenes, con
     const double R = mean(m.error[0]), G = mean(m.error[1]), B = mean(m.error[2]);
     rgb[m.name] = mean(all);
     const double cpu_max = m.cpu_seconds.empty() ? std::nan("") : *std::max_element(m.cpu_seconds.begin(), m.cpu_seconds.end());
-    std::printf("| %s | %.4f | %.4f | %.4f | %.4f | %.2f | %.2f | %d | %.3f | %.3f | %.3f |\n", m.name.c_str(), R, G, B,
-                mean(all), R / G, B / G, m.failed, median(m.cpu_seconds), cpu_max, median(m.wall_seconds));
-    json[m.name] = {{"R", R}, {"G", G}, {"B", B}, {"rgb_mean", mean(all)}, {"failed", m.failed},
+    std::printf("| %s | %.4f | %.4f | %.4f | %.4f | %.4f | %.4f | %.2f | %.2f | %d | %.3f | %.3f | %.3f |\n",
+                m.name.c_str(), R, G, B, mean(all), mean(m.rgb_choose), mean(m.rgb_report), R / G, B / G, m.failed,
+                median(m.cpu_seconds), cpu_max, median(m.wall_seconds));
+    json[m.name] = {{"R", R}, {"G", G}, {"B", B}, {"rgb_mean", mean(all)},
+                    {"rgb_choose", mean(m.rgb_choose)}, {"rgb_report", mean(m.rgb_report)}, {"failed", m.failed},
                     {"cpu_seconds_median", median(m.cpu_seconds)}, {"cpu_seconds_max", cpu_max},
                     {"wall_seconds_median", median(m.wall_seconds)}};
   }
@@ -225,7 +279,7 @@ int runReferencesBench(const ReferencesBenchArgs& args) {
   progress.stage("load and truth");
   std::vector<ChartCalibrationResult> truths;
   std::vector<size_t> truth_of;
-  const std::vector<SceneShots> scenes = loadScenes(root, truths, truth_of, progress);
+  const std::vector<SceneShots> scenes = loadScenes(root, args.truth_scale == "scene", args.raw_exposures == "patches", truths, truth_of, progress);
   progress.done();
   std::vector<Method> methods;
   for (const char* name : {"OpenCV Debevec", "OpenCV Robertson", "crfcal chart", "crfcal chart, exposures given",
@@ -238,12 +292,13 @@ int runReferencesBench(const ReferencesBenchArgs& args) {
   for (size_t i = 0; i < scenes.size(); ++i) {
     const SceneShots& scene = scenes[i];
     const ChartCalibrationResult& truth = truths[truth_of[i]];
+    const bool choose = truth_of[i] % 2 == 0;  // cameras 1, 3, 5, … in name order
     nlohmann::json row{{"camera", scene.camera}, {"scene", scene.scene}, {"exposures", scene.exposures}};
     for (const auto calibrator : {OpenCvCalibrator::Debevec, OpenCvCalibrator::Robertson})
       runMethod(methods[calibrator == OpenCvCalibrator::Debevec ? 0 : 1],
-                [&] { return opencvInverseResponse(scene.frames, scene.exposures, calibrator); }, truth, scene, row);
-    runMethod(methods[2], [&] { return chartCurves(scene, false); }, truth, scene, row);
-    runMethod(methods[3], [&] { return chartCurves(scene, true); }, truth, scene, row);
+                [&] { return opencvInverseResponse(scene.frames, scene.exposures, calibrator); }, truth, scene, choose, row, args.curves);
+    runMethod(methods[2], [&] { return chartCurves(scene, false); }, truth, scene, choose, row, args.curves);
+    runMethod(methods[3], [&] { return chartCurves(scene, true); }, truth, scene, choose, row, args.curves);
     runMethod(methods[4], [&] {
       std::vector<BracketFrame> frames;
       for (size_t j = 0; j < scene.frames.size(); ++j)
@@ -252,7 +307,16 @@ int runReferencesBench(const ReferencesBenchArgs& args) {
       std::vector<std::vector<double>> curves;
       for (const auto& c : result.channels) curves.push_back(c.fit.inverse);
       return curves;
-    }, truth, scene, row);
+    }, truth, scene, choose, row, args.curves);
+    if (args.curves)
+      for (int c = 0; c < 3; ++c) {
+        const ChartChannelResult& t = truth.channels[static_cast<size_t>(c)];
+        nlohmann::json samples = nlohmann::json::array();
+        for (const auto& p : t.patches) samples.push_back({p.shot, p.patch, p.x, p.reference});
+        const IntensityRange range = scoredRange(scene, c, t.fit.covered_range);
+        row["truth"][channelName(c)] = {{"inverse", t.fit.inverse}, {"samples", samples}, {"terms", t.fit.terms},
+                                        {"scored_range", {range.first, range.second}}};
+      }
     cases.push_back(row);
     progress.update(double(i + 1) / double(scenes.size()), scene.camera);
   }
@@ -271,6 +335,17 @@ const BenchRegistration registration(
       command.add_option("--data", args->data,
                          "Shared data directory holding middlebury/ (default $CRFCAL_SHARED_DATA or ../shared/data)");
       command.add_option("--json", args->json, "Write all numbers to this JSON file (atomic)");
+      command.add_flag("--curves", args->curves,
+                       "With --json: also write each method's curves and the RAW truth's curve and samples per case");
+      command.add_option("--truth-scale", args->truth_scale,
+                         "The RAW truth's unknown scale: one per camera and scene (the light changes the RAW-to-JPEG "
+                         "gain) or one per camera")
+          ->check(CLI::IsMember({"scene", "camera"}));
+      command.add_option("--raw-exposures", args->raw_exposures,
+                         "The shots' exposures (for OpenCV, 'exposures given' and the bracket) from the RAW: "
+                         "neighbouring shots' ratios over all patches, or each shot's greys against their published "
+                         "reflectances")
+          ->check(CLI::IsMember({"patches", "greys"}));
       command.add_flag("--force", args->force, kForceHelp);
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runReferencesBench(*args); };

@@ -13,6 +13,7 @@
 #include "crfcal/bracket_simulation.hpp"
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/registration.hpp"
 #include "crfcal/io/datasets.hpp"
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/image_io.hpp"
@@ -107,6 +108,29 @@ TEST(Bracket, AgreesWithOpenCvDebevecOnTheSameSyntheticBracket) {
     const ChannelComparison theirs = compareCurves(b.truth, debevec[static_cast<size_t>(c.channel)], inner, inner);
     EXPECT_LT(ours.rmse_covered_aligned, theirs.rmse_covered_aligned + 0.002) << channelName(c.channel);
   }
+}
+
+TEST(Bracket, AReferencePreparedOnceRegistersAsRegisterPairDoes) {
+  // calibrateBracket detects the reference frame's features once (prepareRegistrationTarget) instead of once per
+  // frame: every frame's registration must be the one registerPair(frame, reference) gives.
+  const SyntheticBracket b = syntheticBracket();
+  const cv::Mat& reference = b.frames[2];
+  const RegistrationTarget target = prepareRegistrationTarget(reference, reference.size());
+  EXPECT_GT(target.keypoints.size(), 8u);
+  for (size_t j : {0u, 1u, 3u}) {
+    const RegistrationResult direct = registerPair(b.frames[j], reference);
+    const RegistrationResult prepared = registerPair(b.frames[j], target);
+    EXPECT_EQ(cv::norm(direct.homography, prepared.homography, cv::NORM_INF), 0.0) << "frame " << j;
+    EXPECT_EQ(direct.inliers, prepared.inliers);
+    EXPECT_EQ(direct.ecc_correlation, prepared.ecc_correlation);
+  }
+  // A frame of another size needs another working scale: refused, not silently misregistered.
+  RegistrationOptions small;
+  small.max_dimension = 128;
+  const RegistrationTarget at_128 = prepareRegistrationTarget(reference, reference.size(), small);
+  cv::Mat bigger;
+  cv::resize(b.frames[0], bigger, cv::Size(), 2, 2, cv::INTER_LINEAR);
+  EXPECT_THROW(registerPair(bigger, at_128, small), InvalidInput);
 }
 
 TEST(Bracket, WithoutExposuresEstimatesThemAndSaysSo) {

@@ -241,6 +241,50 @@ TEST(Chart, AllPatchesRecoverAKnownCurveThroughAColourMatrix) {
   }
 }
 
+TEST(Chart, RawScalePerSceneAbsorbsTheLightsGain) {
+  // RAW reference in common units, but the JPEG of the second light renders the RAW through 1.25× the gain of the
+  // first (white balance): the grey patches of the two scenes lie on two scalings of one curve. One common RAW scale
+  // must bend the curve to split the difference; one scale per scene recovers it.
+  const ResponseCurve truth(GgcmModel{{0.42, 0.08, -0.05, 0.02, 0.0}});
+  const double gain[2] = {1.0, 1.25};
+  std::vector<ChartShot> shots;
+  for (int scene = 0; scene < 2; ++scene)
+    for (double t : {0.15, 0.3, 0.6, 1.2}) {
+      std::vector<std::array<double, 3>> jpeg(chart::kPatches);
+      cv::Mat raw(260, 390, CV_32FC3);
+      for (int p = 0; p < chart::kPatches; ++p) {
+        const double e = t * chart::reference()[static_cast<size_t>(p)].Y * 0.7;
+        const double v = truth.forward(std::min(1.0, gain[scene] * e));
+        jpeg[static_cast<size_t>(p)] = {v, v, v};
+        raw(cv::Rect((p % 6) * 65, (p / 6) * 65, 65, 65)).setTo(cv::Scalar::all(std::min(1.0, e)));
+      }
+      ChartShot shot;
+      shot.name = "s" + std::to_string(scene) + "t" + std::to_string(t);
+      shot.scene = scene;
+      shot.measured = chart::sampleRectified(syntheticChart(jpeg));
+      shot.raw = chart::sampleRectified(raw);
+      shots.push_back(std::move(shot));
+    }
+  ChartCalibrationOptions options;
+  options.use_raw = true;
+  options.raw_neutral_only = true;
+  options.channels = {1};
+  const std::vector<double> exact = truth.sample(kCurveSamples);
+  const ChartCalibrationResult common = calibrateChart(shots, options);
+  options.raw_scale_per_scene = true;
+  const ChartCalibrationResult per_scene = calibrateChart(shots, options);
+  const ScaledFitResult& a = common.channels.front().fit;
+  const ScaledFitResult& b = per_scene.channels.front().fit;
+  ASSERT_EQ(b.scales.size(), 2u);
+  EXPECT_NEAR(b.scales[0] / b.scales[1], gain[1] / gain[0], 0.02);
+  EXPECT_LT(b.rmse, 0.004) << b.summary();
+  EXPECT_GT(a.rmse, 2 * b.rmse) << a.summary();
+  const double shape_per_scene = scaledRmse(exact, b.inverse, b.covered_range.first, b.covered_range.second);
+  const double shape_common = scaledRmse(exact, a.inverse, a.covered_range.first, a.covered_range.second);
+  EXPECT_LT(shape_per_scene, 0.004);
+  EXPECT_LT(shape_per_scene, shape_common);
+}
+
 TEST(Chart, CensoredSamplesBoundTheScale) {
   // Data only up to x = 0.6 on φ = x²; an upper bound s·φ(0.99) ≤ 1.0 at the clipped end keeps the scale honest.
   std::vector<ScaledObservation> obs;
@@ -492,6 +536,9 @@ TEST(BenchReferences, RunsOnTheBundledCameraAndSkipsWithoutData) {
   }
   for (const char* method : {"crfcal chart", "crfcal chart, exposures given"})
     EXPECT_LT(json["summary"][method]["rgb_mean"].get<double>(), 0.03) << method << "\n" << run.output;
+  // One camera: it is the first in name order, so its scene is on the choosing side of the split.
+  EXPECT_NEAR(json["summary"]["crfcal bracket"]["rgb_choose"].get<double>(),
+              json["summary"]["crfcal bracket"]["rgb_mean"].get<double>(), 1e-12);
   const auto skipped = test::run(crfcal + " bench references -q --data " + (dir / "absent").string());
   EXPECT_EQ(skipped.exit_code, 0) << skipped.output;
   EXPECT_NE(skipped.output.find("skipped"), std::string::npos) << skipped.output;

@@ -98,11 +98,18 @@ AlignedBracket alignFrames(const std::vector<BracketFrame>& frames, int referenc
   }
   // Each frame is registered onto the reference independently: one per core (a failure is reported for the first
   // failing frame in order, as a serial loop would).
+  // The reference's side of the registration (normalised copy, AKAZE features) is prepared once for the frames of
+  // its size (a bracket's frames all are): the same result as registerPair(frame, reference) with a third of its
+  // feature detections gone for 4 frames (docs/RESULTS.md#bracket: features were 48 % of a call).
   const int n = static_cast<int>(frames.size());
+  RegistrationTarget target;
+  if (options.register_frames) target = prepareRegistrationTarget(ref, ref.size(), options.registration);
   const std::vector<std::exception_ptr> errors = detail::runInParallel(options.register_frames ? n : 0, [&](int j) {
     if (j == reference) return;
     const size_t k = static_cast<size_t>(j);
-    results[k].registration = registerPair(frames[k].image, ref, options.registration);
+    results[k].registration = frames[k].image.size() == ref.size()
+                                  ? registerPair(frames[k].image, target, options.registration)
+                                  : registerPair(frames[k].image, ref, options.registration);
   });
   for (int j = 0; j < n; ++j) {
     const BracketFrame& frame = frames[static_cast<size_t>(j)];

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <numeric>
 #include <sstream>
 
 #include <Eigen/Dense>
@@ -464,6 +465,15 @@ ChartCalibrationResult calibrateChart(const std::vector<ChartShot>& shots, const
   }
   ChartCalibrationResult result;
   const bool common_scale = options.use_raw ? options.raw_common_scale : all_exposures;
+  // The scale group of each shot: all in one, one per scene (RAW, raw_scale_per_scene), or one per shot.
+  std::vector<int> group_of(shots.size(), 0);
+  if (common_scale && options.use_raw && options.raw_scale_per_scene) {
+    std::map<int, int> scene_group;
+    for (size_t s = 0; s < shots.size(); ++s)
+      group_of[s] = scene_group.emplace(shots[s].scene, int(scene_group.size())).first->second;
+  } else if (!common_scale) {
+    std::iota(group_of.begin(), group_of.end(), 0);
+  }
   if (!options.use_raw && shots.size() > 1 && !all_exposures)
     result.warnings.push_back("no exposure ratios for all shots: one free exposure scale per shot");
 
@@ -499,7 +509,7 @@ ChartCalibrationResult calibrateChart(const std::vector<ChartShot>& shots, const
           o.kind = kind;
           o.x = std::clamp(m.median[static_cast<size_t>(c)], 0.0, 1.0);
           o.y = *y;
-          o.group = common_scale ? 0 : int(s);
+          o.group = group_of[s];
           o.fold = options.use_raw ? int(s) : p;
           censored.push_back(o);
           ++channel.rejected;
@@ -512,7 +522,7 @@ ChartCalibrationResult calibrateChart(const std::vector<ChartShot>& shots, const
         ScaledObservation o;
         o.x = std::clamp(m.median[static_cast<size_t>(c)], 0.0, 1.0);
         o.y = *y;
-        o.group = common_scale ? 0 : int(s);
+        o.group = group_of[s];
         o.fold = options.use_raw ? int(s) : p;
         observations.push_back(o);
         origin.emplace_back(int(s), p);

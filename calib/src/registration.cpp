@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <string>
 #include <vector>
 
 #include <opencv2/calib3d.hpp>
@@ -174,25 +175,29 @@ cv::Mat overlapMaskInSharp(cv::Size sharp_size, const cv::Mat& homography, cv::S
 
 namespace {
 
+// AKAZE keypoints and descriptors of one working copy, at most options.max_features (the strongest).
+void detectFeatures(const cv::Mat& image, const RegistrationOptions& options, std::vector<cv::KeyPoint>& keypoints,
+                    cv::Mat& descriptors) {
+  auto akaze = cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0005f);
+  akaze->detectAndCompute(image, cv::noArray(), keypoints, descriptors);
+  if (static_cast<int>(keypoints.size()) > options.max_features) {
+    cv::KeyPointsFilter::retainBest(keypoints, options.max_features);
+    akaze->compute(image, keypoints, descriptors);
+  }
+}
+
 // Step 1 of registerPair: AKAZE features, ratio-test matches and RANSAC (similarity for the Euclidean model, whose ECC
 // step drops the scale). Returns the working-scale homography sharp → blurred, or an empty matrix when the features do
 // not give a sane one; fills the keypoint, match and inlier counts and the method of `result`.
-cv::Mat featureHomography(const cv::Mat& a, const cv::Mat& b, const RegistrationOptions& options,
+// The target's features come prepared (prepareRegistrationTarget).
+cv::Mat featureHomography(const cv::Mat& a, const RegistrationTarget& target, const RegistrationOptions& options,
                           RegistrationResult& result) {
   cv::Mat H;
-  auto akaze = cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0005f);
-  std::vector<cv::KeyPoint> ka, kb;
-  cv::Mat da, db;
-  akaze->detectAndCompute(a, cv::noArray(), ka, da);
-  akaze->detectAndCompute(b, cv::noArray(), kb, db);
-  auto keep = [&](std::vector<cv::KeyPoint>& kp, cv::Mat& d, const cv::Mat& img) {
-    if (static_cast<int>(kp.size()) > options.max_features) {
-      cv::KeyPointsFilter::retainBest(kp, options.max_features);
-      akaze->compute(img, kp, d);
-    }
-  };
-  keep(ka, da, a);
-  keep(kb, db, b);
+  std::vector<cv::KeyPoint> ka;
+  cv::Mat da;
+  detectFeatures(a, options, ka, da);
+  const std::vector<cv::KeyPoint>& kb = target.keypoints;
+  const cv::Mat& db = target.descriptors;
   result.keypoints_sharp = static_cast<int>(ka.size());
   result.keypoints_blurred = static_cast<int>(kb.size());
   if (ka.size() < 8 || kb.size() < 8) return H;
@@ -286,21 +291,52 @@ double alignmentCorrelation(const cv::Mat& fa, const cv::Mat& fb, const cv::Mat&
 
 }  // namespace
 
+namespace {
+
+// The working-copy scale of registerPair: the longer side of either image brought to options.max_dimension.
+double workingScale(cv::Size sharp, cv::Size blurred, const RegistrationOptions& options) {
+  const int longest = std::max({sharp.width, sharp.height, blurred.width, blurred.height});
+  return std::min(1.0, static_cast<double>(options.max_dimension) / longest);
+}
+
+}  // namespace
+
+RegistrationTarget prepareRegistrationTarget(const cv::Mat& blurred, cv::Size sharp_size,
+                                             const RegistrationOptions& options) {
+  options.check();
+  if (blurred.empty()) throw InvalidInput("registration: empty image");
+  RegistrationTarget target;
+  target.size = blurred.size();
+  target.scale = workingScale(sharp_size, blurred.size(), options);
+  const double scale = target.scale;
+  target.normalised = photometricNormalise(blurred);
+  if (scale < 1) cv::resize(target.normalised, target.normalised, cv::Size(), scale, scale, cv::INTER_AREA);
+  detectFeatures(target.normalised, options, target.keypoints, target.descriptors);
+  return target;
+}
+
 RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, const RegistrationOptions& options) {
   options.check();
   if (sharp.empty() || blurred.empty()) throw InvalidInput("registration: empty image");
+  return registerPair(sharp, prepareRegistrationTarget(blurred, sharp.size(), options), options);
+}
+
+RegistrationResult registerPair(const cv::Mat& sharp, const RegistrationTarget& target,
+                                const RegistrationOptions& options) {
+  options.check();
+  if (sharp.empty() || target.normalised.empty()) throw InvalidInput("registration: empty image");
   RegistrationResult result;
-  const int longest = std::max({sharp.cols, sharp.rows, blurred.cols, blurred.rows});
-  const double s = std::min(1.0, static_cast<double>(options.max_dimension) / longest);
+  const double s = workingScale(sharp.size(), target.size, options);
+  if (s != target.scale)
+    throw InvalidInput("registration: the target was prepared for images of another size (working scale " +
+                       std::to_string(target.scale) + ", this image needs " + std::to_string(s) + ")");
   result.scale = s;
-  cv::Mat a = photometricNormalise(sharp), b = photometricNormalise(blurred);
-  if (s < 1) {
-    cv::resize(a, a, cv::Size(), s, s, cv::INTER_AREA);
-    cv::resize(b, b, cv::Size(), s, s, cv::INTER_AREA);
-  }
+  cv::Mat a = photometricNormalise(sharp);
+  const cv::Mat& b = target.normalised;
+  if (s < 1) cv::resize(a, a, cv::Size(), s, s, cv::INTER_AREA);
   const int motion = eccMotion(options.motion);
 
-  cv::Mat H = featureHomography(a, b, options, result);  // working scale, sharp → blurred
+  cv::Mat H = featureHomography(a, target, options, result);  // working scale, sharp → blurred
   if (H.empty()) {
     H = phaseHomography(a, b);
     result.method = "phase";
@@ -312,7 +348,7 @@ RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, co
   if (!result.ecc_refined) result.ecc_correlation = alignmentCorrelation(fa, fb, H, options);
   result.method += std::string(" (") + toString(options.motion) + ")";
   result.homography = scaleMatrix(1.0 / s) * H * scaleMatrix(s);
-  result.overlap_fraction = coverage(sharp.size(), result.homography, blurred.size());
+  result.overlap_fraction = coverage(sharp.size(), result.homography, target.size);
   char detail[200];
   if (result.overlap_fraction < options.min_overlap || result.ecc_correlation < options.min_correlation) {
     std::snprintf(detail, sizeof detail,

@@ -102,6 +102,11 @@ struct ChartCalibrationOptions {
   bool use_raw = false;                              // reference = RAW patch values of the same shot (per channel)
   chart::ReferenceSet reference = chart::ReferenceSet::Neutral;  // published reference otherwise
   bool raw_common_scale = true;   // with RAW: one scale for all shots (RAW values are in common linear units)
+  // With RAW and raw_common_scale: one scale per scene (ChartShot::scene) instead of one for all shots. The gain
+  // between a camera's RAW channel and its JPEG tone curve changes with the light (white balance): on the Middlebury
+  // cameras the grey patches of the two illuminations sit up to 17 % apart in R and B about one common-scale curve
+  // (docs/RESULTS.md#bracket). false: one scale for all (what `crfcal chart --raw` and `bench chart` use).
+  bool raw_scale_per_scene = false;
   bool raw_neutral_only = false;  // with RAW: use only the six grey patches (no colour-matrix crosstalk)
   ScaledFitOptions fit;           // K chosen by leave-one-patch-out CV (leave-one-shot-out with RAW)
   ggcm::FitOptions ggcm;          // conversion of the EMoR result to GGCM (seed Eq. 19, [28]), n = 4

@@ -13,6 +13,7 @@
 // degree, whose perspective terms are far below a pixel; affine and homography are options. The sub-pixel
 // residual translation is left to the kernel, which absorbs it (Sec. 4, [27]).
 #include <string>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -58,6 +59,24 @@ struct RegistrationResult {
 // Registers `sharp` onto `blurred` (any depth, grey or BGR; sizes may differ slightly). Throws InvalidInput
 // "the pair does not overlap ..." when no consistent alignment exists.
 RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, const RegistrationOptions& options = {});
+
+// The target (`blurred`) side of registerPair prepared once: its photometrically normalised working copy and its
+// AKAZE features. Registering several frames onto one reference (a bracket) detects the reference's features once
+// instead of once per frame; the result is the same as registerPair(sharp, blurred).
+struct RegistrationTarget {
+  cv::Size size;                        // the target's full-resolution size
+  double scale = 1;                     // working-copy scale (registerPair's, for images of `sharp_size`)
+  cv::Mat normalised;                   // 8-bit, histogram-equalised, at `scale`
+  std::vector<cv::KeyPoint> keypoints;  // AKAZE, at most options.max_features
+  cv::Mat descriptors;
+};
+// Prepares `blurred` for registering images of `sharp_size` onto it (the working scale depends on both sizes).
+RegistrationTarget prepareRegistrationTarget(const cv::Mat& blurred, cv::Size sharp_size,
+                                             const RegistrationOptions& options = {});
+// registerPair onto a prepared target. Throws InvalidInput when `sharp` needs another working scale than the one the
+// target was prepared for, or as registerPair does.
+RegistrationResult registerPair(const cv::Mat& sharp, const RegistrationTarget& target,
+                                const RegistrationOptions& options = {});
 
 // Kernel-aware refinement of `coarse`: ECC (the options' motion model) between I ⊗ K and B, both normalised.
 // `sharp`, `blurred`: single-channel, any depth; `sharp_valid` (optional CV_8U, sharp frame): pixels of I to use.
