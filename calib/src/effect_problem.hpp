@@ -287,6 +287,8 @@ struct EffectSearch {
   Evaluation current_eval;
   std::vector<std::string> selected;
   std::vector<Coefficients> coef;   // the selected model's parameters (describeSelectedModel)
+  // B within this margin of saturation_high is treated as saturated (intensity, worst channel; usablePixels).
+  double full_scale_margin = 0;
 
   // What the model checks measured, for the final refit.
   BlurTest blur;
@@ -303,6 +305,8 @@ struct EffectSearch {
 
 // Reads the pair into `search` (units, debiasing, usable pixels, ρ², folds). False: too few usable pixels.
 bool prepareProblem(EffectSearch& search);
+
+
 
 // One correction + refit with the extended model `spec`: the jointly re-fitted φ_ext = φ + Σ α_k h_k and the
 // parameters correct the pair, fitInverseCrf refits φ (same options; r fixed when fixed_ratio > 0). Empty on
