@@ -686,7 +686,7 @@ void readChannels(EffectSearch& search) {
 // predicts the pixel far above full scale. Within margin = censored_margin (CrfFitOptions, 2) × the rounding's σ
 // (step / √12) of saturation_high — the 8-bit code 254 — a pixel counts as saturated. Without it, clean real-regime
 // pairs (the sharp shot underexposed by r) named "clipping" at a plateau of B at 254/255 held by a few blocks, and
-// planted cos⁴ vignetting was named clipping too (docs/RESULTS.md#effects-held-out). Chosen on the detector-form
+// planted cos⁴ vignetting was named clipping too (docs/RESULTS.md#effects-code-254). Chosen on the detector-form
 // bench: B's measured noise in place of the rounding (Immerkær's σ_B, 1–1.25 levels there: a margin of 2–2.5
 // levels) hid the planted plateaus at 252/255 (2 of 20 pairs), whose φ bias is large (0.018 against 0.001 clean).
 double fullScaleMargin(const EffectSearch& search, int c) {

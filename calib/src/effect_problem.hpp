@@ -306,8 +306,6 @@ struct EffectSearch {
 // Reads the pair into `search` (units, debiasing, usable pixels, ρ², folds). False: too few usable pixels.
 bool prepareProblem(EffectSearch& search);
 
-
-
 // One correction + refit with the extended model `spec`: the jointly re-fitted φ_ext = φ + Σ α_k h_k and the
 // parameters correct the pair, fitInverseCrf refits φ (same options; r fixed when fixed_ratio > 0). Empty on
 // failure. with_blur: per-tile fits with the first-order kernel; with_noise: σ(v) to the fitter.
