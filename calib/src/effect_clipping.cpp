@@ -41,6 +41,7 @@ void describe(const EffectSearch& search, const Spec&, const Evaluation& ev, Eff
   const double irradiance = search.curves[gi].curve.inverse(level);
   e.parameters["clip_irradiance"] = irradiance;
   e.parameters["clip_intensity"] = level;
+  e.parameters["full_scale_margin"] = search.full_scale_margin;  // B within it of full scale: saturated
   e.detail = fmt("plateau of B at intensity %.3f (irradiance %.3f): pixels there are censored", level, irradiance);
 }
 

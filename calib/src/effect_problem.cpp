@@ -680,15 +680,34 @@ void readChannels(EffectSearch& search) {
   }
 }
 
-// Usable pixels: away (by the kernel's size) from saturation in either shot, inside the registration overlap and
-// the frame's inner part that the kernel sees whole.
-cv::Mat usablePixels(const EffectSearch& search) {
+// B's stored values just below saturation_high may be clipped pixels. B clips at full scale after its sensor noise
+// (noise does not move a clipped pixel), but the rounding of the stored value, JPEG's coding (a small clipped
+// highlight decodes a level or two below 255) and the registration's resampling do, and there the seed's model
+// predicts the pixel far above full scale. Within margin = censored_margin (CrfFitOptions, 2) × the rounding's σ
+// (step / √12) of saturation_high — the 8-bit code 254 — a pixel counts as saturated. Without it, clean real-regime
+// pairs (the sharp shot underexposed by r) named "clipping" at a plateau of B at 254/255 held by a few blocks, and
+// planted cos⁴ vignetting was named clipping too (docs/RESULTS.md#effects-code-254). Chosen on the detector-form
+// bench: B's measured noise in place of the rounding (Immerkær's σ_B, 1–1.25 levels there: a margin of 2–2.5
+// levels) hid the planted plateaus at 252/255 (2 of 20 pairs), whose φ bias is large (0.018 against 0.001 clean).
+double fullScaleMargin(const EffectSearch& search, int c) {
+  const cv::Mat& stored = search.in.blurred.at(search.in.channels[c]);
+  const bool integer = stored.depth() == CV_8U || stored.depth() == CV_16U;
+  return integer ? search.in.fit.censored_margin / (std::sqrt(12.0) * fullScale(stored)) : 0.0;
+}
+
+// Usable pixels: away (by the kernel's size) from saturation in either shot (B within fullScaleMargin of it counts
+// as saturated), inside the registration overlap and the frame's inner part that the kernel sees whole.
+cv::Mat usablePixels(EffectSearch& search) {
   const Prepared& p = search.p;
   const cv::Size size = search.size;
   const int n = std::max(search.K.rows, search.K.cols);
-  cv::Mat bad = cv::Mat::zeros(size, CV_8U);
+  cv::Mat bad = cv::Mat::zeros(size, CV_8U), near_full = cv::Mat::zeros(size, CV_8U);
   for (int c = 0; c < search.nc; ++c) {
     bad |= (p.B[c] >= search.in.fit.saturation_high) | (p.B[c] <= search.in.fit.saturation_low);
+    // B clips pointwise (after the blur), so the pixels near full scale are excluded themselves, not dilated
+    const double margin = fullScaleMargin(search, c);
+    search.full_scale_margin = std::max(search.full_scale_margin, margin);
+    near_full |= p.B[c] >= search.in.fit.saturation_high - margin;
     // A noisy I touches 0 and 1 by noise alone (the debiased level functions model that clip, as in the fitter):
     // only regions whose local median is saturated are saturated — the darkest regions pin an offset.
     cv::Mat level = p.I[c];
@@ -701,7 +720,7 @@ cv::Mat usablePixels(const EffectSearch& search) {
     }
     bad |= (level >= search.in.fit.saturation_high) | (level <= search.in.fit.saturation_low);
   }
-  cv::Mat usable = ~dilateBy(bad, n);
+  cv::Mat usable = ~(dilateBy(bad, n) | near_full);
   if (!search.in.valid.empty()) usable &= search.in.valid;
   const int m = n / 2 + 1;
   cv::Mat inner = cv::Mat::zeros(size, CV_8U);

@@ -287,6 +287,8 @@ struct EffectSearch {
   Evaluation current_eval;
   std::vector<std::string> selected;
   std::vector<Coefficients> coef;   // the selected model's parameters (describeSelectedModel)
+  // B within this margin of saturation_high is treated as saturated (intensity, worst channel; usablePixels).
+  double full_scale_margin = 0;
 
   // What the model checks measured, for the final refit.
   BlurTest blur;

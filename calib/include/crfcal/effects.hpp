@@ -5,7 +5,9 @@
 //
 // Residuals (irradiance domain, intensity-scaled like the fitter's ω = 1/φ'(B)², Eq. 21 to first order):
 //   e_p = (φ(B_p) − Ŷ_p) / φ'(B_p),   base model Ŷ = a · (g(I) ⊗ K)(p)  (a = the exposure ratio, free)
-// on a regular subsample of the usable pixels of the fit window (flat and edge pixels alike); g = R φ the level
+// on a regular subsample of the usable pixels of the fit window (flat and edge pixels alike; B's stored values within
+// twice their rounding's σ of saturation_high — the 8-bit code 254 — count as saturated: a clipped highlight that JPEG
+// or resampling moved just below full scale is saturation, not the clipping effect); g = R φ the level
 // function debiased for I's noise (noise_debias.hpp), so that Jensen's bias and the clip of the noise at 0 do not
 // pose as an offset. φ is re-fitted jointly with every model (base included: the comparison is fair and nested):
 // φ = φ̂ + Σ α_k h_k over the first `phi_terms` EMoR basis curves h_k, with φ'(B) in the residual following the
