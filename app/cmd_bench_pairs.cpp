@@ -26,6 +26,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/handheld_simulation.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/curve_prior_io.hpp"
 #include "crfcal/io/datasets.hpp"
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/image_io.hpp"
@@ -67,6 +68,7 @@ struct PairsArgs {
   double irradiance_kernel_lambda = PairCalibrationOptions{}.irradiance_kernel_lambda;
   bool unweighted_irradiance_kernel = false;
   std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
+  double learned_prior_weight = PairCalibrationOptions{}.fit.learned_prior_weight;  // --shoulder learned
   bool pairs_only = false;
   int band_replicates = PairCalibrationOptions{}.band.replicates;  // 0: no band (and no band table)
   bool force = false;  // write into an output directory holding other files (never deletes them)
@@ -284,6 +286,7 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
   options.ratio_evidence.enabled = args.ratio_evidence == "on";
   options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
+  options.fit.learned_prior_weight = args.learned_prior_weight;
   options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
   options.band.replicates = args.band_replicates;
@@ -427,7 +430,10 @@ struct PairsRun {
   CaseScores calibrate(const PairCase& c, const HandheldPair& pair, cv::Size photo_size, const fs::path& dir,
                        std::chrono::steady_clock::time_point t0, nlohmann::json& row) {
     const io::LoadedPair loaded = io::loadPair(dir / "sharp.jpg", dir / "blurred.jpg");
-    const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, calibrationOptions(args, loaded));
+    PairCalibrationOptions options = calibrationOptions(args, loaded);
+    // leave one camera out: the case's camera (its curve table's name) is not among the prior's training curves
+    if (args.shoulder == "learned") options.fit.learned_prior = io::learnPriorFromCameraCurves({shortName(c.crf)});
+    const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
     CaseScores s;
     s.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     s.rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(c.truth));
@@ -670,9 +676,15 @@ const BenchRegistration registration(
           ->capture_default_str()
           ->check(CLI::IsMember({"jensen", "none", "debias", "denoise"}));
       command.add_flag("--fix-ratio", args->fix_ratio, "Keep r at the (deliberately off) EXIF value, as calibrate --fix-ratio");
-      command.add_option("--shoulder", args->shoulder, "Extrapolation above the data: rising-free or mean-camera (as calibrate)")
+      command.add_option("--learned-prior-weight", args->learned_prior_weight,
+                         "--shoulder learned: weight of the learned prior's rows")
           ->capture_default_str()
-          ->check(CLI::IsMember({"rising-free", "mean-camera"}));
+          ->check(CLI::NonNegativeNumber);
+      command.add_option("--shoulder", args->shoulder,
+                         "Extrapolation above the data: rising-free, mean-camera or learned (a prior learned from the "
+                         "samples/camera_curves cameras except each case's own: leave one camera out)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"rising-free", "mean-camera", "learned"}));
       command.add_flag("--always-fit-ratio", args->always_fit_ratio, "Fit r even when a sub-pixel blur leaves it undetermined, as calibrate --always-fit-ratio");
       command.add_option("--ratio-evidence", args->ratio_evidence,
                          "on: the images' r combined with EXIF by their precisions (as calibrate); off: the images alone")

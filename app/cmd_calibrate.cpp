@@ -13,6 +13,7 @@
 #include "command.hpp"
 #include "option_checks.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/io/curve_prior_io.hpp"
 #include "crfcal/io/atomic_output.hpp"
 #include "crfcal/io/calibration_figures.hpp"
 #include "crfcal/io/calibration_report.hpp"
@@ -221,6 +222,7 @@ PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nomi
   options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
   options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
+  if (args.shoulder == "learned") options.fit.learned_prior = io::learnPriorFromCameraCurves();
   options.fit.ratio_prior_sigma = args.ratio_prior;
   options.fit.censored_weight = args.censored_weight;
   options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
@@ -553,10 +555,11 @@ const CommandRegistration registration(
                        "< 1 px and the images' r more than 10 % from the EXIF/--ratio value, r is held at that value)")
           ->excludes("--fix-ratio");
       command.add_option("--shoulder", args->shoulder,
-                         "Extrapolation of phi above the data: rising-free (the local exponent may rise freely) or "
-                         "mean-camera (it rises like the EMoR mean curve's)")
+                         "Extrapolation of phi above the data: rising-free (the local exponent may rise freely), "
+                         "mean-camera (it rises like the EMoR mean curve's) or learned (above and below the data: a "
+                         "prior learned from the measured camera curves in samples/camera_curves)")
           ->capture_default_str()
-          ->check(CLI::IsMember({"rising-free", "mean-camera"}));
+          ->check(CLI::IsMember({"rising-free", "mean-camera", "learned"}));
       command.add_option("--irradiance-kernel-lambda", args->irradiance_kernel_lambda,
                          "Sparsity weight of the irradiance-domain kernel rounds (the first estimate keeps 0.03)")
           ->capture_default_str()

@@ -86,6 +86,9 @@ void CrfFitOptions::check() const {
   if (position_bins < 1 || position_bins > 16) throw InvalidInput("fit options: position_bins must be in [1, 16]");
   if (!(exponent_smoothness >= 0)) throw InvalidInput("fit options: exponent_smoothness must be >= 0");
   if (!(shoulder_prior >= 0)) throw InvalidInput("fit options: shoulder_prior must be >= 0");
+  if (!(learned_prior_weight >= 0) || !std::isfinite(learned_prior_weight))
+    throw InvalidInput("fit options: learned_prior_weight must be >= 0");
+  if (learned_prior && learned_prior->empty()) throw InvalidInput("fit options: learned_prior has no training curves");
   if (!(prior_energy_factor >= 1)) throw InvalidInput("fit options: prior_energy_factor must be >= 1");
   if (!(ratio_prior_sigma >= 0) || !std::isfinite(ratio_prior_sigma))
     throw InvalidInput("fit options: ratio_prior_sigma must be >= 0");

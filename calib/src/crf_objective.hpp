@@ -67,6 +67,11 @@ struct MomentSystem {
   // upper triples: the reference's change of local exponent (g_{bc} − g_{ab} of the EMoR mean g0) that φ's change
   // is held to; empty: the one-sided prior (a rise is free, a fall costs shoulder_weight)
   std::vector<double> shoulder_reference;
+  // Learned prior (CrfFitOptions::learned_prior; replaces the triples): rows M · log φ(learned_nodes) − d, the
+  // whitened conditional Gaussian of the exponents outside the covered levels given those inside, √weight folded in.
+  std::vector<int> learned_nodes;
+  Eigen::MatrixXd learned_matrix;  // rows × learned_nodes.size()
+  Eigen::VectorXd learned_offset;
   // Lower bound (CrfFitOptions::min_local_exponent): rows kPenaltyScale · max(0, ε − g_ab) for consecutive nodes.
   std::vector<std::array<int, 2>> exponent_pairs;
   double min_exponent = 0;

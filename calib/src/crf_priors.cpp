@@ -2,6 +2,8 @@
 
 #include <cmath>
 
+#include <Eigen/Cholesky>
+
 #include "crfcal/emor.hpp"
 
 namespace crfcal::crf_fit {
@@ -12,6 +14,55 @@ std::vector<int> exponentNodes(int L) {
   std::vector<int> nodes;
   for (int j = 1; j <= 64; ++j) nodes.push_back(static_cast<int>(std::lround(j * (L - 1) / 64.0)));
   return nodes;
+}
+
+// The learned prior's rows (CrfFitOptions::learned_prior): g = E · log φ(nodes) on the fit's own node levels; the
+// conditional N(offset + gain · g_O, C) of the unobserved exponents; rows √λ · C^{-1/2} (E_U − gain · E_O) log φ − d.
+void setLearnedPrior(MomentSystem& sys, const CrfFitOptions& options, std::pair<int, int> covered_levels) {
+  const int L = sys.levels();
+  const std::vector<int> nodes = exponentNodes(L);
+  const int n = static_cast<int>(nodes.size()), m = n - 1;
+  const ConditionalExponents c = conditionOnCovered(
+      *options.learned_prior, {double(covered_levels.first) / (L - 1), double(covered_levels.second) / (L - 1)});
+  if (c.unobserved.empty()) return;
+  Eigen::MatrixXd e = Eigen::MatrixXd::Zero(m, n);
+  for (int j = 0; j < m; ++j) {
+    const double dl = std::log(double(nodes[j + 1]) / nodes[j]);
+    e(j, j) = -1 / dl;
+    e(j, j + 1) = 1 / dl;
+  }
+  const int nu = static_cast<int>(c.unobserved.size());
+  Eigen::MatrixXd rows(nu, n);
+  for (int a = 0; a < nu; ++a) {
+    rows.row(a) = e.row(c.unobserved[a]);
+    for (std::size_t b = 0; b < c.observed.size(); ++b) rows.row(a) -= c.gain(a, b) * e.row(c.observed[b]);
+  }
+  const Eigen::LLT<Eigen::MatrixXd> chol(c.covariance);
+  if (chol.info() != Eigen::Success) return;
+  // The marginal of the exponents inside (with the observation noise): together with the conditional rows the
+  // joint Gaussian p(g_O) p(g_U | g_O). It holds the shapes inside that the data leave free — the affine
+  // a + bφ at r = 1 — to those of measured curves.
+  const int no = static_cast<int>(c.observed.size());
+  Eigen::MatrixXd inside(no, n), cov_o(no, no);
+  Eigen::VectorXd mean_o(no);
+  for (int a = 0; a < no; ++a) {
+    inside.row(a) = e.row(c.observed[a]);
+    mean_o[a] = options.learned_prior->mean[c.observed[a]];
+    for (int b = 0; b < no; ++b) cov_o(a, b) = options.learned_prior->covariance(c.observed[a], c.observed[b]);
+    cov_o(a, a) += std::pow(options.learned_prior->observed_exponent_sigma, 2);
+  }
+  const Eigen::LLT<Eigen::MatrixXd> chol_o(cov_o);
+  if (no > 0 && chol_o.info() != Eigen::Success) return;
+  const double w = std::sqrt(options.learned_prior_weight);
+  sys.learned_nodes = nodes;
+  sys.learned_matrix.resize(nu + no, n);
+  sys.learned_offset.resize(nu + no);
+  sys.learned_matrix.topRows(nu) = w * chol.matrixL().solve(rows);
+  sys.learned_offset.head(nu) = w * chol.matrixL().solve(c.offset);
+  if (no > 0) {
+    sys.learned_matrix.bottomRows(no) = w * chol_o.matrixL().solve(inside);
+    sys.learned_offset.tail(no) = w * chol_o.matrixL().solve(mean_o);
+  }
 }
 
 }  // namespace
@@ -46,6 +97,7 @@ void setExtrapolationPrior(MomentSystem& sys, const CrfFitOptions& options, std:
     sys.exponent_pairs = exponentPairs(L);
     sys.min_exponent = options.min_local_exponent;
   }
+  if (options.learned_prior && options.learned_prior_weight > 0) setLearnedPrior(sys, options, covered_levels);
   if (!(options.exponent_smoothness > 0)) return;
   sys.exponent_triples = exponentTriples(L, covered_levels.first, covered_levels.second);
   sys.exponent_weight = options.exponent_smoothness;
@@ -71,6 +123,7 @@ void setRatioPrior(MomentSystem& sys, double residual_variance, const CrfFitOpti
 PriorRows::PriorRows(const MomentSystem& sys, bool fit_ratio, bool with_prior)
     : sys_(sys),
       prior_rows_(with_prior && sys.exponent_weight > 0 ? static_cast<int>(sys.exponent_triples.size()) : 0),
+      learned_rows_(with_prior ? static_cast<int>(sys.learned_matrix.rows()) : 0),
       bound_rows_(sys.min_exponent > 0 ? static_cast<int>(sys.exponent_pairs.size()) : 0),
       ratio_rows_(fit_ratio && sys.ratio_prior_scale > 0 ? 1 : 0) {}
 
@@ -84,6 +137,9 @@ bool PriorRows::defined(const std::vector<double>& f) const {
   if (prior_rows_)
     for (const auto& t : sys_.exponent_triples)
       if (!(f[t[0]] > 0)) return false;
+  if (learned_rows_)
+    for (const int v : sys_.learned_nodes)
+      if (!(f[v] > 0)) return false;
   if (bound_rows_)
     for (const auto& t : sys_.exponent_pairs)
       if (!(f[t[0]] > 0)) return false;
@@ -109,7 +165,12 @@ void PriorRows::residuals(const std::vector<double>& f, double log_r, Eigen::Vec
     }
     res[offset + i] = scale[i] * (g2 - g1 - target);
   }
-  const int bound_offset = offset + prior_rows_;
+  if (learned_rows_) {
+    Eigen::VectorXd log_f(sys_.learned_nodes.size());
+    for (std::size_t k = 0; k < sys_.learned_nodes.size(); ++k) log_f[k] = std::log(f[sys_.learned_nodes[k]]);
+    res.segment(offset + prior_rows_, learned_rows_) = sys_.learned_matrix * log_f - sys_.learned_offset;
+  }
+  const int bound_offset = offset + prior_rows_ + learned_rows_;
   for (int i = 0; i < bound_rows_; ++i) {
     const auto& t = sys_.exponent_pairs[i];
     const double g = localExponent(f, t[0], t[1]);
@@ -130,7 +191,14 @@ void PriorRows::jacobian(const std::vector<double>& f,
       jac(offset + i, j) = scale[i] * ((l2 - l1) / d2 - (l1 - l0) / d1);
     }
   }
-  const int bound_offset = offset + prior_rows_;
+  if (learned_rows_) {
+    const int nodes = static_cast<int>(sys_.learned_nodes.size());
+    Eigen::MatrixXd dlog(nodes, d);  // d log φ(node) / d parameter
+    for (int k = 0; k < nodes; ++k)
+      for (int j = 0; j < d; ++j) dlog(k, j) = jm(j, sys_.learned_nodes[k]) / f[sys_.learned_nodes[k]];
+    jac.block(offset + prior_rows_, 0, learned_rows_, d) = sys_.learned_matrix * dlog;
+  }
+  const int bound_offset = offset + prior_rows_ + learned_rows_;
   for (int i = 0; i < bound_rows_; ++i) {
     if (!(res[bound_offset + i] > 0)) continue;
     const auto& t = sys_.exponent_pairs[i];
@@ -144,20 +212,36 @@ void PriorRows::jacobian(const std::vector<double>& f,
 ModelFit fitModelMomentsWithPrior(const Curve& curve, const MomentSystem& sys, std::vector<std::vector<double>> starts,
                                   double r0, bool fit_ratio, int max_iterations, double energy_factor) {
   ModelFit plain = fitModelMoments(curve, sys, starts, r0, fit_ratio, max_iterations, false);
-  if (sys.exponent_triples.empty() || sys.exponent_weight <= 0) return plain;
+  const bool hand_set = !sys.exponent_triples.empty() && sys.exponent_weight > 0;
+  if (!hand_set && sys.learned_matrix.rows() == 0) return plain;
   if (!plain.x.empty()) starts.push_back(plain.x);
-  ModelFit prior = fitModelMoments(curve, sys, starts, r0, fit_ratio, max_iterations, true);
-  prior.evaluations += plain.evaluations;
-  prior.iterations += plain.iterations;
-  plain.evaluations = prior.evaluations;
-  plain.iterations = prior.iterations;
   auto dataEnergy = [&](const ModelFit& m) {
     std::vector<double> f;
     if (m.x.empty() || !curve.values(m.x.data(), f, nullptr)) return kInf;
     const double e = momentEnergy(sys, f, m.ratio);  // the data rows only
     return std::isfinite(e) ? e : kInf;
   };
-  const double e0 = dataEnergy(plain), e1 = dataEnergy(prior);
+  const double e0 = dataEnergy(plain);
+  ModelFit prior;
+  if (sys.learned_matrix.rows() > 0) {
+    // The learned prior is a Gaussian: its whitened rows go in the units of the data rows, each scaled by the
+    // residual's standard deviation per data row of the prior-free fit, so that the sum is −2 log posterior · s².
+    if (!std::isfinite(e0)) return plain;
+    const double rows = static_cast<double>(sys.h.rows());
+    const double s = std::sqrt(e0 / std::max(1.0, rows - curve.dims() - (fit_ratio ? 1 : 0)));
+    MomentSystem scaled = sys;
+    scaled.learned_matrix *= s;
+    scaled.learned_offset *= s;
+    prior = fitModelMoments(curve, scaled, starts, r0, fit_ratio, max_iterations, true);
+  } else {
+    prior = fitModelMoments(curve, sys, starts, r0, fit_ratio, max_iterations, true);
+  }
+  prior.evaluations += plain.evaluations;
+  prior.iterations += plain.iterations;
+  plain.evaluations = prior.evaluations;
+  plain.iterations = prior.iterations;
+  const double e1 = dataEnergy(prior);
+
   if (prior.valid && (!plain.valid || e1 <= energy_factor * e0)) {
     prior.energy = e1;
     return prior;

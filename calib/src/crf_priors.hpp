@@ -4,6 +4,7 @@
 // a + bφ, and φ^γ with r^γ fits a plain two-exposure pair equally well (the exponential ambiguity):
 //  * the extrapolation prior on φ's local exponent below the covered levels (CrfFitOptions::exponent_smoothness)
 //    and above them (shoulder_prior; one-sided, or the EMoR mean's shoulder),
+//    and, when given, the prior learned from measured curves (learned_prior: the joint Gaussian of the exponents),
 //  * the lower bound on the local exponent everywhere (min_local_exponent),
 //  * the Gaussian prior on log r around the nominal ratio (ratio_prior_sigma).
 #include <array>
@@ -30,12 +31,12 @@ void setExtrapolationPrior(MomentSystem& sys, const CrfFitOptions& options, std:
 // to −2 log posterior · s² / weight.
 void setRatioPrior(MomentSystem& sys, double residual_variance, const CrfFitOptions& options);
 
-// The prior rows appended to the moment residuals (MomentResiduals): extrapolation prior (with_prior only),
+// The prior rows appended to the moment residuals (MomentResiduals): extrapolation prior and learned prior (with_prior only),
 // local-exponent bound, ratio prior (r fitted only), in this order.
 class PriorRows {
  public:
   PriorRows(const MomentSystem& sys, bool fit_ratio, bool with_prior);
-  int count() const { return prior_rows_ + bound_rows_ + ratio_rows_; }
+  int count() const { return prior_rows_ + learned_rows_ + bound_rows_ + ratio_rows_; }
   // The local exponents need log φ at every node they use (the first node of a chain is its smallest).
   bool defined(const std::vector<double>& f) const;
   // res[offset .. offset + count()); scale: the extrapolation rows' weights at f (for the Jacobian).
@@ -52,7 +53,7 @@ class PriorRows {
   double localExponent(const std::vector<double>& f, int a, int b) const;  // d log φ / d log x between a < b
 
   const MomentSystem& sys_;
-  int prior_rows_, bound_rows_, ratio_rows_;
+  int prior_rows_, learned_rows_, bound_rows_, ratio_rows_;
 };
 
 // Fits φ without the extrapolation priors, then with them from the same starts (and the plain fit), and keeps the

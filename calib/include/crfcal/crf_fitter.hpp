@@ -26,6 +26,7 @@
 // cross-validated energy (pixels split in 16×16 tiles, checkerboard; fit on one half, energy on the other,
 // summed both ways).
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
@@ -34,6 +35,7 @@
 #include <opencv2/core.hpp>
 
 #include "crfcal/chroma_subsampling.hpp"
+#include "crfcal/learned_curve_prior.hpp"
 #include "crfcal/noise_debias.hpp"
 #include "crfcal/response_model.hpp"
 
@@ -117,6 +119,14 @@ struct CrfFitOptions {
   // ten Middlebury cameras, ≥ 1 for any gamma curve), so a bound of half the most concave measured one removes the
   // degenerate solutions without touching real curves. 0: off.
   double min_local_exponent = 0.25;
+  // moments: a prior over φ outside the covered levels learned from measured curves (learned_curve_prior.hpp, issue
+  // 19), added to the hand-set priors above (alone it lost to them: a synthetic r = 1 test, docs/RESULTS.md#learned-
+  // prior): the joint Gaussian of φ's local exponents, rows √learned_prior_weight · s · Σ^{-1/2}(g_U − E[g_U | g_O])
+  // outside the covered levels and Σ_OO^{-1/2}(g_O − μ_O) inside, s the prior-free fit's residual per data row (so
+  // that weight 1 is the posterior); the fit with it is kept under prior_energy_factor like the hand-set priors.
+  // null (default): the hand-set priors only.
+  std::shared_ptr<const LearnedCurvePrior> learned_prior;
+  double learned_prior_weight = 1;
   double saturation_high = 254.5 / 255.0;  // B or I at/above: saturated (dilated by the kernel's support)
   double saturation_low = 0.5 / 255.0;     // B or I at/below: censored black (dilated likewise)
   // moments: weight λ of the saturated pixels of B as censored observations (issue 19; crf_censored.hpp). φ → bφ

@@ -1,0 +1,153 @@
+#include "crfcal/learned_curve_prior.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include <Eigen/Cholesky>
+
+#include "crfcal/error.hpp"
+
+namespace crfcal {
+namespace {
+
+constexpr int kN = LearnedCurvePrior::kNodes;
+constexpr int kG = LearnedCurvePrior::kExponents;
+
+double nodeX(int j) { return j / double(kN); }  // j = 1..kN
+
+// φ at x by linear interpolation of a uniform table on [0, 1].
+double sampleAt(const std::vector<double>& table, double x) {
+  const double t = std::clamp(x, 0.0, 1.0) * (table.size() - 1);
+  const std::size_t i = std::min(static_cast<std::size_t>(t), table.size() - 2);
+  return table[i] + (t - i) * (table[i + 1] - table[i]);
+}
+
+void checkCurve(const std::vector<double>& c, std::size_t index) {
+  const std::string which = "learned prior: training curve " + std::to_string(index);
+  if (c.size() < kN + 1) throw InvalidInput(which + " has fewer than 65 samples", ErrorSubject::curve);
+  for (std::size_t i = 0; i < c.size(); ++i)
+    if (!std::isfinite(c[i]) || (i > 0 && c[i] < c[i - 1]))
+      throw InvalidInput(which + " is not finite and non-decreasing", ErrorSubject::curve);
+  if (std::abs(c.front()) > 1e-6 || std::abs(c.back() - 1) > 1e-6)
+    throw InvalidInput(which + " does not run from phi(0) = 0 to phi(1) = 1", ErrorSubject::curve);
+}
+
+// The index of the highest / lowest node inside [lo, hi] (nodes 1..kN), or 0 when none.
+int highestNodeInside(std::pair<double, double> covered) {
+  for (int j = kN; j >= 1; --j)
+    if (nodeX(j) <= covered.second + 1e-12 && nodeX(j) >= covered.first - 1e-12) return j;
+  return 0;
+}
+
+}  // namespace
+
+void LearnedCurvePriorOptions::check() const {
+  if (!(shrinkage >= 0 && shrinkage <= 1)) throw InvalidInput("learned prior: shrinkage must be in [0, 1]");
+  if (!(exponent_sigma_floor >= 0) || !std::isfinite(exponent_sigma_floor))
+    throw InvalidInput("learned prior: exponent_sigma_floor must be >= 0");
+  if (!(observed_exponent_sigma >= 0) || !std::isfinite(observed_exponent_sigma))
+    throw InvalidInput("learned prior: observed_exponent_sigma must be >= 0");
+}
+
+Eigen::VectorXd localExponents(const std::vector<double>& inverse_crf) {
+  Eigen::VectorXd g(kG);
+  for (int j = 1; j < kN; ++j) {
+    const double a = std::max(sampleAt(inverse_crf, nodeX(j)), 1e-9);
+    const double b = std::max(sampleAt(inverse_crf, nodeX(j + 1)), 1e-9);
+    g[j - 1] = (std::log(b) - std::log(a)) / (std::log(nodeX(j + 1)) - std::log(nodeX(j)));
+  }
+  return g;
+}
+
+LearnedCurvePrior learnCurvePrior(const std::vector<std::vector<double>>& inverse_crfs,
+                                  const LearnedCurvePriorOptions& options) {
+  options.check();
+  if (inverse_crfs.size() < 2) throw InvalidInput("learned prior: needs at least 2 training curves", ErrorSubject::curve);
+  Eigen::MatrixXd g(kG, static_cast<Eigen::Index>(inverse_crfs.size()));
+  for (std::size_t i = 0; i < inverse_crfs.size(); ++i) {
+    checkCurve(inverse_crfs[i], i);
+    g.col(static_cast<Eigen::Index>(i)) = localExponents(inverse_crfs[i]);
+  }
+  LearnedCurvePrior prior;
+  prior.curves = static_cast<int>(inverse_crfs.size());
+  prior.mean = g.rowwise().mean();
+  const Eigen::MatrixXd centred = g.colwise() - prior.mean;
+  const Eigen::MatrixXd sample = centred * centred.transpose() / double(prior.curves - 1);
+  Eigen::MatrixXd cov = (1 - options.shrinkage) * sample;
+  const double floor2 = options.exponent_sigma_floor * options.exponent_sigma_floor;
+  for (int j = 0; j < kG; ++j) cov(j, j) = std::max(cov(j, j) + options.shrinkage * sample(j, j), floor2);
+  prior.covariance = cov;
+  prior.observed_exponent_sigma = options.observed_exponent_sigma;
+  return prior;
+}
+
+ConditionalExponents conditionOnCovered(const LearnedCurvePrior& prior, std::pair<double, double> covered) {
+  if (prior.empty()) throw InvalidInput("learned prior: empty");
+  ConditionalExponents c;
+  for (int j = 1; j < kN; ++j) {
+    const bool inside = nodeX(j) >= covered.first - 1e-12 && nodeX(j + 1) <= covered.second + 1e-12;
+    (inside ? c.observed : c.unobserved).push_back(j - 1);
+  }
+  const int nu = static_cast<int>(c.unobserved.size()), no = static_cast<int>(c.observed.size());
+  Eigen::MatrixXd s_uu(nu, nu), s_uo(nu, no), s_oo(no, no);
+  Eigen::VectorXd m_u(nu), m_o(no);
+  for (int a = 0; a < nu; ++a) {
+    m_u[a] = prior.mean[c.unobserved[a]];
+    for (int b = 0; b < nu; ++b) s_uu(a, b) = prior.covariance(c.unobserved[a], c.unobserved[b]);
+    for (int b = 0; b < no; ++b) s_uo(a, b) = prior.covariance(c.unobserved[a], c.observed[b]);
+  }
+  for (int a = 0; a < no; ++a) {
+    m_o[a] = prior.mean[c.observed[a]];
+    for (int b = 0; b < no; ++b) s_oo(a, b) = prior.covariance(c.observed[a], c.observed[b]);
+    s_oo(a, a) += prior.observed_exponent_sigma * prior.observed_exponent_sigma;
+  }
+  if (no == 0) {
+    c.gain = Eigen::MatrixXd::Zero(nu, 0);
+    c.offset = m_u;
+    c.covariance = s_uu;
+    return c;
+  }
+  const Eigen::LDLT<Eigen::MatrixXd> solver(s_oo);
+  c.gain = solver.solve(s_uo.transpose()).transpose();
+  c.offset = m_u - c.gain * m_o;
+  c.covariance = s_uu - c.gain * s_uo.transpose();
+  c.covariance = 0.5 * (c.covariance + c.covariance.transpose());
+  return c;
+}
+
+std::vector<double> extrapolateWithPrior(const LearnedCurvePrior& prior, const std::vector<double>& inverse_crf,
+                                         std::pair<double, double> covered) {
+  checkCurve(inverse_crf, 0);
+  const int top = highestNodeInside(covered);
+  if (top == 0) throw InvalidInput("learned prior: the covered range holds no node x = j/64");
+  const ConditionalExponents c = conditionOnCovered(prior, covered);
+  Eigen::VectorXd g = localExponents(inverse_crf);
+  Eigen::VectorXd g_o(c.observed.size());
+  for (std::size_t i = 0; i < c.observed.size(); ++i) g_o[i] = g[c.observed[i]];
+  const Eigen::VectorXd g_u = c.offset + c.gain * g_o;
+  for (std::size_t i = 0; i < c.unobserved.size(); ++i) g[c.unobserved[i]] = g_u[i];
+  // log φ at the nodes: the curve's own at the highest node inside, the exponents everywhere else.
+  std::vector<double> log_node(kN + 1, 0.0);
+  log_node[top] = std::log(std::max(sampleAt(inverse_crf, nodeX(top)), 1e-9));
+  for (int j = top + 1; j <= kN; ++j) log_node[j] = log_node[j - 1] + g[j - 2] * std::log(nodeX(j) / nodeX(j - 1));
+  for (int j = top - 1; j >= 1; --j) log_node[j] = log_node[j + 1] - g[j - 1] * std::log(nodeX(j + 1) / nodeX(j));
+  const double log_scale = -log_node[kN];  // φ(1) = 1
+  int bottom = top;
+  while (bottom > 1 && nodeX(bottom - 1) >= covered.first - 1e-12) --bottom;
+  const std::size_t n = inverse_crf.size();
+  std::vector<double> out(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double x = double(i) / (n - 1);
+    if (x <= 0) { out[i] = 0; continue; }
+    if (x >= nodeX(bottom) && x <= nodeX(top)) { out[i] = inverse_crf[i] * std::exp(log_scale); continue; }
+    // the power law of the interval holding x (below x_1: the first exponent)
+    const int j = std::clamp(static_cast<int>(std::floor(x * kN)), 1, kN - 1);
+    const int base = x < nodeX(1) ? 1 : j;
+    out[i] = std::exp(log_scale + log_node[base] + g[base - 1] * std::log(x / nodeX(base)));
+  }
+  out.back() = 1.0;
+  return out;
+}
+
+}  // namespace crfcal
