@@ -63,7 +63,7 @@ void configureAllocator() {
 int main(int argc, char** argv) {
   using namespace crfcal::app;
   configureAllocator();  // before the first allocation of any size that matters
-  crfcal::io::installInterruptCleanup();  // first: before any thread starts (Ctrl-C leaves no partial output)
+  crfcal::io::installInterruptCleanup();  // before any thread starts (Ctrl-C leaves no partial output)
   cv::utils::logging::setLogLevel(cv::utils::logging::LOG_LEVEL_ERROR);
   CLI::App app{"crfcal " CRFCAL_VERSION
                " - measure a camera's response function (CRF) from a sharp/blurred pair and deblur with it.\n"
