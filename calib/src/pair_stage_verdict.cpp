@@ -146,10 +146,8 @@ double brightnessRatio(const PairCalibrationState& state, const std::string& nam
   }
 }
 
-namespace {
-
 // The verdict per channel from the final fits, the flat regions, the covered ranges and the refit guard.
-void judgeChannelsOfPair(PairCalibrationState& state) {
+void computeVerdict(PairCalibrationState& state) {
   PairCalibrationResult& result = state.result;
   const PairCalibrationOptions& options = state.options;
   std::vector<ChannelEvidence> evidence;
@@ -193,14 +191,10 @@ void judgeChannelsOfPair(PairCalibrationState& state) {
   result.verdicts = judgeChannels(evidence, refit, options.verdict);
 }
 
-}  // namespace
-
 void summariseFits(PairCalibrationState& state) {
   diagnosticMaps(state);
   blurWarnings(state);
   for (const auto& [name, fit] : state.result.fits) channelWarnings(state, name, fit);
 }
-
-void computeVerdict(PairCalibrationState& state) { judgeChannelsOfPair(state); }
 
 }  // namespace crfcal::detail
