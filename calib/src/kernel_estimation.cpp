@@ -4,7 +4,6 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
-#include <mutex>
 #include <limits>
 #include <numeric>
 
@@ -130,53 +129,67 @@ Direction selectEquations(const cv::Mat& s, const cv::Mat& b, const cv::Mat& val
 
 // Exact normal equations over the selected pixels, restricted to the offsets in `offsets` (dy, dx relative to the
 // kernel centre): M = Aᵀ A, c = Aᵀ y with A(p, j) = X(p − d_j). Built in blocks of rows (single-precision GEMM per
-// block, the image data carry far less precision; the blocks are summed in double), in parallel.
-void accumulate(const Direction& d, const std::vector<cv::Point>& offsets, NormalEquations& eq, std::mutex& lock) {
+// block, the image data carry far less precision; the blocks are summed in double), in parallel: one contiguous run
+// of blocks per thread, each summed in block order, the runs added in run order. (Adding each worker's sum as it
+// finished made the result depend on which finished first: two runs of one calibration differed by ~1e-10.)
+void accumulate(const Direction& d, const std::vector<cv::Point>& offsets, NormalEquations& eq) {
   const int ns = static_cast<int>(offsets.size());
   const int total = static_cast<int>(d.pixels.size());
   constexpr int block = 1024;
   const int blocks = (total + block - 1) / block;
-  cv::parallel_for_(cv::Range(0, blocks), [&](const cv::Range& range) {
-    Eigen::MatrixXd M = Eigen::MatrixXd::Zero(ns, ns);
-    Eigen::VectorXd c = Eigen::VectorXd::Zero(ns);
-    double yy = 0;
-    Eigen::MatrixXf A(block, ns);
-    Eigen::MatrixXf G(ns, ns);
-    Eigen::VectorXf y(block), w(block);
-    for (int bi = range.start; bi < range.end; ++bi) {
-      const int start = bi * block, rows = std::min(block, total - start);
-      for (int j = 0; j < ns; ++j) {
-        const cv::Point o = offsets[static_cast<std::size_t>(j)];
-        float* column = A.col(j).data();
+  const int runs = std::max(1, std::min(blocks, cv::getNumThreads()));
+  std::vector<Eigen::MatrixXd> run_M(static_cast<std::size_t>(runs));
+  std::vector<Eigen::VectorXd> run_c(static_cast<std::size_t>(runs));
+  std::vector<double> run_yy(static_cast<std::size_t>(runs), 0.0);
+  cv::parallel_for_(cv::Range(0, runs), [&](const cv::Range& run_range) {
+    for (int run = run_range.start; run < run_range.end; ++run) {
+      Eigen::MatrixXd M = Eigen::MatrixXd::Zero(ns, ns);
+      Eigen::VectorXd c = Eigen::VectorXd::Zero(ns);
+      double yy = 0;
+      Eigen::MatrixXf A(block, ns);
+      Eigen::MatrixXf G(ns, ns);
+      Eigen::VectorXf y(block), w(block);
+      const int first = static_cast<int>(static_cast<long long>(blocks) * run / runs);
+      const int last = static_cast<int>(static_cast<long long>(blocks) * (run + 1) / runs);
+      for (int bi = first; bi < last; ++bi) {
+        const int start = bi * block, rows = std::min(block, total - start);
+        for (int j = 0; j < ns; ++j) {
+          const cv::Point o = offsets[static_cast<std::size_t>(j)];
+          float* column = A.col(j).data();
+          for (int i = 0; i < rows; ++i) {
+            const cv::Point p = d.pixels[static_cast<std::size_t>(start + i)];
+            column[i] = static_cast<float>(d.X.at<double>(p.y - o.y, p.x - o.x));
+          }
+        }
         for (int i = 0; i < rows; ++i) {
           const cv::Point p = d.pixels[static_cast<std::size_t>(start + i)];
-          column[i] = static_cast<float>(d.X.at<double>(p.y - o.y, p.x - o.x));
+          y(i) = static_cast<float>(d.Y.at<double>(p.y, p.x));
         }
-      }
-      for (int i = 0; i < rows; ++i) {
-        const cv::Point p = d.pixels[static_cast<std::size_t>(start + i)];
-        y(i) = static_cast<float>(d.Y.at<double>(p.y, p.x));
-      }
-      if (!d.W.empty()) {  // weighted least squares: each equation (row of A and y) scaled by its pixel's weight
-        for (int i = 0; i < rows; ++i) {
-          const cv::Point p = d.pixels[static_cast<std::size_t>(start + i)];
-          w(i) = static_cast<float>(d.W.at<double>(p.y, p.x));
+        if (!d.W.empty()) {  // weighted least squares: each equation (row of A and y) scaled by its pixel's weight
+          for (int i = 0; i < rows; ++i) {
+            const cv::Point p = d.pixels[static_cast<std::size_t>(start + i)];
+            w(i) = static_cast<float>(d.W.at<double>(p.y, p.x));
+          }
+          A.topRows(rows) = w.head(rows).asDiagonal() * A.topRows(rows);
+          y.head(rows).array() *= w.head(rows).array();
         }
-        A.topRows(rows) = w.head(rows).asDiagonal() * A.topRows(rows);
-        y.head(rows).array() *= w.head(rows).array();
+        const auto Ab = A.topRows(rows);
+        G.setZero();
+        G.selfadjointView<Eigen::Lower>().rankUpdate(Ab.transpose());
+        M += G.cast<double>();
+        c += (Ab.transpose() * y.head(rows)).cast<double>();
+        yy += static_cast<double>(y.head(rows).squaredNorm());
       }
-      const auto Ab = A.topRows(rows);
-      G.setZero();
-      G.selfadjointView<Eigen::Lower>().rankUpdate(Ab.transpose());
-      M += G.cast<double>();
-      c += (Ab.transpose() * y.head(rows)).cast<double>();
-      yy += static_cast<double>(y.head(rows).squaredNorm());
+      run_M[static_cast<std::size_t>(run)] = M.selfadjointView<Eigen::Lower>().toDenseMatrix();
+      run_c[static_cast<std::size_t>(run)] = c;
+      run_yy[static_cast<std::size_t>(run)] = yy;
     }
-    std::lock_guard<std::mutex> guard(lock);
-    eq.M += M.selfadjointView<Eigen::Lower>().toDenseMatrix();
-    eq.c += c;
-    eq.yy += yy;
   });
+  for (int run = 0; run < runs && blocks > 0; ++run) {
+    eq.M += run_M[static_cast<std::size_t>(run)];
+    eq.c += run_c[static_cast<std::size_t>(run)];
+    eq.yy += run_yy[static_cast<std::size_t>(run)];
+  }
   eq.pixels += total;
 }
 
@@ -369,7 +382,6 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
     NormalEquations eq;
     eq.M = Eigen::MatrixXd::Zero(ns, ns);
     eq.c = Eigen::VectorXd::Zero(ns);
-    std::mutex lock;
     for (std::size_t pi = 0; pi < patches.size(); ++pi) {
       const Patch& patch = patches[pi];
       cv::Mat s = patch.s, b = patch.b, m = patch.m, w = patch.w;
@@ -385,7 +397,7 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
       for (int dir = 0; dir < 2; ++dir) {
         const std::uint64_t salt = 0x9e3779b97f4a7c15ULL * (level + 1) + 0x632be59bd9b4e019ULL * pi + dir;
         const Direction d = selectEquations(s, b, m, w, region_mask, dir, r, options, per_patch, salt);
-        accumulate(d, offsets, eq, lock);
+        accumulate(d, offsets, eq);
       }
     }
     if (eq.pixels < std::max<long long>(50, ns) || !(eq.yy > 1e-12) || !(eq.M.trace() > 1e-12))
