@@ -4,12 +4,16 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <map>
+#include <utility>
+#include <vector>
 
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
+#include "packed_spectrum.hpp"
 
 namespace crfcal {
 namespace {
@@ -120,22 +124,83 @@ cv::Mat wienerSolve(const cv::Mat& f, const cv::Mat& kernel_spectrum, double nsr
   return realInverse(quotient);
 }
 
+// ---- the u-step's operators on one FFT canvas --------------------------------------------------------------------
+// They depend only on the canvas size, the kernel and β, so every tile of the same padded size shares them: formed
+// once per size (at 12 MP a handful of sizes for 60 (channel, tile) jobs) instead of four DFTs and a dozen passes
+// per tile.
+
+// A real, even operator's packed spectrum (zero imaginary parts) with its value copied into both slots of every
+// (re, im) pair: multiplying a packed spectrum by it element-wise (cv::multiply) is then the spectral product.
+cv::Mat bothSlots(const cv::Mat& real_spectrum) {
+  return multiply(cv::Mat::ones(real_spectrum.size(), real_spectrum.type()), real_spectrum);
+}
+
+struct CanvasOperators {
+  cv::Mat kernel_spectrum;   // K̂
+  cv::Mat gradient_energy;   // |D̂x|² + |D̂y|² (TV only)
+  cv::Mat kernel_energy;     // |K̂|²
+  cv::Mat identity;          // ones at every frequency
+  cv::Mat first_reciprocal;  // R at options.beta_start (both slots)
+  cv::Mat first_data_gain;   // G = λ/β conj(K̂) R at options.beta_start
+
+  // R = 1 / (|D̂|² + λ/β |K̂|²) (both slots) and G = λ/β conj(K̂) R at `beta`.
+  void stepOperators(double beta, double lambda, cv::Mat& reciprocal, cv::Mat& data_gain) const {
+    const double ratio = lambda / beta;
+    cv::divide(1.0, bothSlots(gradient_energy + ratio * kernel_energy), reciprocal);
+    cv::mulSpectrums(reciprocal.mul(identity), kernel_spectrum, data_gain, 0, true);
+    data_gain *= ratio;
+  }
+};
+
+CanvasOperators canvasOperators(const cv::Mat& kernel, cv::Size size, const DeconvolutionOptions& options) {
+  const int depth = options.single_precision ? CV_32F : CV_64F;
+  CanvasOperators canvas;
+  canvas.kernel_spectrum = kernelSpectrum(kernel, size, depth);
+  if (options.method != DeconvolutionMethod::TotalVariation) return canvas;
+  const cv::Mat dx = differenceSpectrum(size, true, depth), dy = differenceSpectrum(size, false, depth);
+  canvas.gradient_energy = multiply(dx, dx, true) + multiply(dy, dy, true);
+  canvas.kernel_energy = multiply(canvas.kernel_spectrum, canvas.kernel_spectrum, true);
+  canvas.identity = identitySpectrum(size, depth);
+  canvas.stepOperators(options.beta_start, options.lambda, canvas.first_reciprocal, canvas.first_data_gain);
+  return canvas;
+}
+
 // ---- TV solver -----------------------------------------------------------------------------------------------
 // Everything between the FFTs is fused into a few passes over buffers allocated once per tile (as cv::Mat
 // expressions each operation allocated and faulted in a full-size temporary: 6–11 % more CPU at 12 MP). The FFTs
 // themselves are most of the time (docs/RESULTS.md, "Speed at 12 MP").
 
-// The w-step and the ADMM multiplier update in one pass (Goldstein & Osher 2009): g = ∇u + b, w = shrink(g, 1/β)
-// (isotropic), b ← g − w; writes the u-step's field w − b (bregman; b starts at 0) or w into (px, py). ∇ is
-// forwardDifference: (Dx u)(p) = u(p + eₓ) − u(p) with wrap-around.
+// The w-step and the ADMM multiplier update (Goldstein & Osher 2009): g = ∇u + b, w = shrink(g, 1/β) (isotropic),
+// b ← g − w; the u-step's field is p = w − b (bregman; b starts at 0) or w. ∇ is forwardDifference:
+// (Dx u)(p) = u(p + eₓ) − u(p) with wrap-around. Fused with Dᵀp = Dxᵀ px + Dyᵀ py, (Dxᵀ g)(p) = g(p − eₓ) − g(p),
+// the adjoint formed in the image domain (two FFTs fewer per u-step than through spectra): one pass over u, b and
+// the output, p kept for two rows only (row 0's adjoint needs the last row's py: it is written last).
 template <typename T>
-void shrinkGradient(const cv::Mat& u, double beta, bool bregman, cv::Mat& bx, cv::Mat& by, cv::Mat& px, cv::Mat& py) {
-  const int rows = u.rows, cols = u.cols;
-  const T threshold = static_cast<T>(1.0 / beta), tiny = static_cast<T>(1e-12);
-  for (int y = 0; y < rows; ++y) {
-    const T* here = u.ptr<T>(y);
-    const T* below = u.ptr<T>(y + 1 < rows ? y + 1 : 0);
-    T *bxr = bx.ptr<T>(y), *byr = by.ptr<T>(y), *pxr = px.ptr<T>(y), *pyr = py.ptr<T>(y);
+class ShrinkAndAdjoint {
+ public:
+  explicit ShrinkAndAdjoint(int cols) : rows_(5 * static_cast<size_t>(cols)), cols_(cols) {}
+
+  void operator()(const cv::Mat& u, double beta, bool bregman, cv::Mat& bx, cv::Mat& by, cv::Mat& adjoint) {
+    const int rows = u.rows, cols = cols_;
+    T *px = row(0), *py = row(1), *py_above = row(2), *px_first = row(3), *py_first = row(4);
+    for (int y = 0; y < rows; ++y) {
+      shrinkRow(u.ptr<T>(y), u.ptr<T>(y + 1 < rows ? y + 1 : 0), beta, bregman, bx.ptr<T>(y), by.ptr<T>(y), px, py);
+      if (y == 0) {
+        std::copy(px, px + cols, px_first);
+        std::copy(py, py + cols, py_first);
+      } else {
+        adjointRow(px, py, py_above, adjoint.ptr<T>(y));
+      }
+      std::swap(py, py_above);
+    }
+    adjointRow(px_first, py_first, py_above, adjoint.ptr<T>(0));  // py_above: the last row's
+  }
+
+ private:
+  T* row(int i) { return rows_.data() + static_cast<size_t>(i) * cols_; }
+
+  void shrinkRow(const T* here, const T* below, double beta, bool bregman, T* bxr, T* byr, T* pxr, T* pyr) const {
+    const T threshold = static_cast<T>(1.0 / beta), tiny = static_cast<T>(1e-12);
     const auto step = [&](int x, T right) {
       const T gx = right - here[x] + bxr[x];
       const T gy = below[x] - here[x] + byr[x];
@@ -152,23 +217,18 @@ void shrinkGradient(const cv::Mat& u, double beta, bool bregman, cv::Mat& bx, cv
         pyr[x] = wy;
       }
     };
-    for (int x = 0; x + 1 < cols; ++x) step(x, here[x + 1]);
-    step(cols - 1, here[0]);
+    for (int x = 0; x + 1 < cols_; ++x) step(x, here[x + 1]);
+    step(cols_ - 1, here[0]);
   }
-}
 
-// Dᵀp = Dxᵀ px + Dyᵀ py, (Dxᵀ g)(p) = g(p − eₓ) − g(p): the adjoint of forwardDifference, formed in the image
-// domain (two FFTs fewer per u-step than through spectra).
-template <typename T>
-void gradientAdjoint(const cv::Mat& px, const cv::Mat& py, cv::Mat& out) {
-  const int rows = px.rows, cols = px.cols;
-  for (int y = 0; y < rows; ++y) {
-    const T *pxr = px.ptr<T>(y), *pyr = py.ptr<T>(y), *above = py.ptr<T>(y > 0 ? y - 1 : rows - 1);
-    T* o = out.ptr<T>(y);
-    o[0] = (pxr[cols - 1] - pxr[0]) + (above[0] - pyr[0]);
-    for (int x = 1; x < cols; ++x) o[x] = (pxr[x - 1] - pxr[x]) + (above[x] - pyr[x]);
+  void adjointRow(const T* pxr, const T* pyr, const T* above, T* o) const {
+    o[0] = (pxr[cols_ - 1] - pxr[0]) + (above[0] - pyr[0]);
+    for (int x = 1; x < cols_; ++x) o[x] = (pxr[x - 1] - pxr[x]) + (above[x] - pyr[x]);
   }
-}
+
+  std::vector<T> rows_;  // px, py, py of the row above, px and py of row 0
+  int cols_;
+};
 
 // ‖next − u‖ / ‖next‖ in one pass.
 template <typename T>
@@ -185,10 +245,26 @@ double relativeChange(const cv::Mat& next, const cv::Mat& u) {
   return std::sqrt(difference) / std::max(std::sqrt(norm), 1e-12);
 }
 
-// A real, even operator's packed spectrum (zero imaginary parts) with its value copied into both slots of every
-// (re, im) pair: multiplying a packed spectrum by it element-wise (cv::multiply) is then the spectral product.
-cv::Mat bothSlots(const cv::Mat& real_spectrum) {
-  return multiply(cv::Mat::ones(real_spectrum.size(), real_spectrum.type()), real_spectrum);
+// The runs of pixels left out of the data term (mask 0): the MM fill rewrites only these.
+struct MaskedOutRun {
+  int y, x0, x1;  // [x0, x1) of row y
+};
+
+std::vector<MaskedOutRun> maskedOutRuns(const cv::Mat& mask) {
+  std::vector<MaskedOutRun> runs;
+  for (int y = 0; y < mask.rows; ++y) {
+    const uchar* m = mask.ptr<uchar>(y);
+    for (int x = 0; x < mask.cols;) {
+      if (m[x]) {
+        ++x;
+        continue;
+      }
+      const int x0 = x;
+      while (x < mask.cols && !m[x]) ++x;
+      runs.push_back({y, x0, x});
+    }
+  }
+  return runs;
 }
 
 // FTVd (Wang et al. 2008, Alg. 1 with continuation) with the masked data term minimised by MM (see header).
@@ -197,53 +273,54 @@ cv::Mat bothSlots(const cv::Mat& real_spectrum) {
 // of saturated regions: −1 dB on the tests' images.) The u-step
 //   (DᵀD + λ/β KᵀK) u = Dᵀw + λ/β Kᵀḟ
 // is diagonal in Fourier: Û = F(Dᵀw) · R + F(ḟ) · G with R = 1 / (|D̂x|² + |D̂y|² + λ/β |K̂|²) and
-// G = λ/β · conj(K̂) · R, both fixed per β.
+// G = λ/β · conj(K̂) · R, both fixed per β (the first β's shared by every tile of the canvas size). Between the FFTs
+// three passes: shrinkage with Dᵀ, the spectral u-step with the next prediction's spectrum Û · K̂, and the change of
+// u; ḟ keeps f where M = 1, and only its masked-out runs are rewritten.
 template <typename T>
-cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const cv::Mat& kernel_spectrum,
+cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const CanvasOperators& canvas,
                             const DeconvolutionOptions& options, int* iterations) {
   const cv::Size size = f.size();
   const int depth = f.depth();
-  const cv::Mat dx = differenceSpectrum(size, true, depth), dy = differenceSpectrum(size, false, depth);
-  const cv::Mat gradient_energy = multiply(dx, dx, true) + multiply(dy, dy, true);
-  const cv::Mat kernel_energy = multiply(kernel_spectrum, kernel_spectrum, true);
-  const cv::Mat identity = identitySpectrum(size, depth);
-  const bool masked = cv::countNonZero(mask) < mask.rows * mask.cols;
+  const std::vector<MaskedOutRun> runs = maskedOutRuns(mask);
+  const bool masked = !runs.empty();
 
   // buffers, allocated once
-  cv::Mat u = f.clone(), next(size, depth), fill(size, depth), adjoint(size, depth);
+  cv::Mat u = f.clone(), next(size, depth), fill = f.clone(), adjoint(size, depth);
   cv::Mat bx = cv::Mat::zeros(size, depth), by = cv::Mat::zeros(size, depth);  // scaled ADMM multipliers of w = ∇u
-  cv::Mat px(size, depth), py(size, depth);
-  cv::Mat u_spectrum, fill_spectrum, adjoint_spectrum, product(size, depth), reciprocal, data_gain, fixed_data;
+  cv::Mat u_spectrum, f_spectrum, fill_spectrum, adjoint_spectrum, prediction, reciprocal, data_gain, fixed_data;
+  ShrinkAndAdjoint<T> shrink_and_adjoint(size.width);
   cv::dft(u, u_spectrum);
-  cv::dft(f, fill_spectrum);
+  if (masked) cv::mulSpectrums(u_spectrum, canvas.kernel_spectrum, prediction, 0);  // K ⊗ u's spectrum
+  else f_spectrum = u_spectrum.clone();
   int steps = 0;
   for (double beta = options.beta_start; beta <= options.beta_max * (1 + 1e-12); beta *= options.beta_factor) {
-    const double ratio = options.lambda / beta;
-    cv::divide(1.0, bothSlots(gradient_energy + ratio * kernel_energy), reciprocal);
-    cv::mulSpectrums(reciprocal.mul(identity), kernel_spectrum, data_gain, 0, true);
-    data_gain *= ratio;
-    if (!masked) cv::mulSpectrums(fill_spectrum, data_gain, fixed_data, 0);  // Kᵀf: the same at every step
+    if (beta == options.beta_start) {
+      reciprocal = canvas.first_reciprocal;
+      data_gain = canvas.first_data_gain;
+    } else {  // fresh buffers: the first β's are the canvas's, shared with other tiles
+      reciprocal.release();
+      data_gain.release();
+      canvas.stepOperators(beta, options.lambda, reciprocal, data_gain);
+    }
+    if (!masked) cv::mulSpectrums(f_spectrum, data_gain, fixed_data, 0);  // Kᵀf: the same at every step
     if (beta > options.beta_start) {  // the scaled multiplier b = y / β follows β
       bx /= options.beta_factor;
       by /= options.beta_factor;
     }
     for (int inner = 0; inner < options.inner_iterations; ++inner) {
-      if (masked) {  // MM: masked-out data replaced by the current prediction K ⊗ u
-        cv::mulSpectrums(u_spectrum, kernel_spectrum, product, 0);
-        cv::dft(product, fill, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
-        f.copyTo(fill, mask);
+      if (masked) {  // MM: masked-out data replaced by the current prediction K ⊗ u (the adjoint's buffer, free here)
+        cv::dft(prediction, adjoint, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
+        for (const MaskedOutRun& run : runs)
+          std::copy(adjoint.ptr<T>(run.y) + run.x0, adjoint.ptr<T>(run.y) + run.x1, fill.ptr<T>(run.y) + run.x0);
         cv::dft(fill, fill_spectrum);
       }
-      shrinkGradient<T>(u, beta, options.bregman, bx, by, px, py);
-      gradientAdjoint<T>(px, py, adjoint);
+      shrink_and_adjoint(u, beta, options.bregman, bx, by, adjoint);
       cv::dft(adjoint, adjoint_spectrum);
-      cv::multiply(adjoint_spectrum, reciprocal, u_spectrum);
-      if (masked) {
-        cv::mulSpectrums(fill_spectrum, data_gain, product, 0);
-        u_spectrum += product;
-      } else {
-        u_spectrum += fixed_data;
-      }
+      if (masked)
+        packed::uStepSpectrum<T>(adjoint_spectrum, reciprocal, fill_spectrum, data_gain, canvas.kernel_spectrum,
+                                 u_spectrum, prediction);
+      else
+        packed::uStepSpectrum<T>(adjoint_spectrum, reciprocal, fixed_data, u_spectrum);
       cv::dft(u_spectrum, next, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
       const double change = relativeChange<T>(next, u);
       std::swap(u, next);
@@ -288,25 +365,45 @@ std::vector<Tile> planTiles(cv::Size image, const cv::Mat& kernel, const Deconvo
   return tiles;
 }
 
+// The operators of every canvas size the tiles use, keyed by (width, height), formed in parallel.
+using Canvases = std::map<std::pair<int, int>, CanvasOperators>;
+
+Canvases prepareCanvases(const std::vector<Tile>& tiles, const cv::Mat& kernel, const DeconvolutionOptions& options) {
+  Canvases canvases;
+  for (const Tile& tile : tiles) {
+    const cv::Size size = choosePadding(tile.data.size(), kernel).padded;
+    canvases[{size.width, size.height}];
+  }
+  std::vector<Canvases::value_type*> entries;
+  for (auto& entry : canvases) entries.push_back(&entry);
+  cv::parallel_for_(cv::Range(0, static_cast<int>(entries.size())), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      const cv::Size size(entries[i]->first.first, entries[i]->first.second);
+      entries[i]->second = canvasOperators(kernel, size, options);
+    }
+  });
+  return canvases;
+}
+
 // Deconvolves observed(tile.data) (CV_32F or CV_64F) and writes its tile.core into `result`.
 void deconvolveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv::Mat& kernel, const Tile& tile,
-                    const DeconvolutionOptions& options, cv::Mat& result, int* iterations) {
+                    const Canvases& canvases, const DeconvolutionOptions& options, cv::Mat& result, int* iterations) {
   const int depth = options.single_precision ? CV_32F : CV_64F;
   cv::Mat f;
   observed(tile.data).convertTo(f, depth);
   const Padding padding = choosePadding(f.size(), kernel);
   const cv::Mat padded = reflectPad(f, padding);
-  const cv::Mat kernel_spectrum = kernelSpectrum(kernel, padding.padded, depth);
+  const CanvasOperators& canvas = canvases.at({padding.padded.width, padding.padded.height});
   cv::Mat u;
   if (options.method == DeconvolutionMethod::Wiener) {
-    u = wienerSolve(padded, kernel_spectrum, options.wiener_nsr);
+    u = wienerSolve(padded, canvas.kernel_spectrum, options.wiener_nsr);
     if (iterations) *iterations = 1;
   } else {
     cv::Mat mask(padding.padded, CV_8U, cv::Scalar(options.free_boundary ? 0 : 255));
     if (data_mask.empty()) mask(padding.interior()).setTo(255);
     else cv::Mat(data_mask(tile.data) != 0).copyTo(mask(padding.interior()));
-    u = depth == CV_32F ? totalVariationSolve<float>(padded, mask, kernel_spectrum, options, iterations)
-                        : totalVariationSolve<double>(padded, mask, kernel_spectrum, options, iterations);
+    u = depth == CV_32F ? totalVariationSolve<float>(padded, mask, canvas, options, iterations)
+                        : totalVariationSolve<double>(padded, mask, canvas, options, iterations);
   }
   const cv::Rect core_in_u(padding.left + tile.core.x - tile.data.x, padding.top + tile.core.y - tile.data.y,
                            tile.core.width, tile.core.height);
@@ -367,10 +464,12 @@ cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const 
     throw InvalidInput("deconvolution mask and image differ in size");
   const cv::Mat k = normalizeKernel(kernel);
   const std::vector<Tile> tiles = planTiles(observed.size(), k, options);
+  const Canvases canvases = prepareCanvases(tiles, k, options);
   cv::Mat result(observed.size(), CV_64F);
   std::vector<int> steps(tiles.size(), 0);
   cv::parallel_for_(cv::Range(0, static_cast<int>(tiles.size())), [&](const cv::Range& range) {
-    for (int t = range.start; t < range.end; ++t) deconvolveTile(observed, data_mask, k, tiles[t], options, result, &steps[t]);
+    for (int t = range.start; t < range.end; ++t)
+      deconvolveTile(observed, data_mask, k, tiles[t], canvases, options, result, &steps[t]);
   });
   if (iterations) *iterations = steps[0];
   return result;
@@ -428,12 +527,13 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
 
   // Every (channel, tile) pair is one job, so that two cores stay busy whatever the number of channels.
   const std::vector<Tile> tiles = planTiles(blurred.size(), k, options);
+  const Canvases canvases = prepareCanvases(tiles, k, options);
   const int jobs = channels * static_cast<int>(tiles.size());
   std::vector<int> steps(jobs, 0);
   cv::parallel_for_(cv::Range(0, jobs), [&](const cv::Range& range) {
     for (int job = range.start; job < range.end; ++job) {
       const int c = job / static_cast<int>(tiles.size());
-      deconvolveTile(observed[c], masks[c], k, tiles[job % tiles.size()], options, results[c], &steps[job]);
+      deconvolveTile(observed[c], masks[c], k, tiles[job % tiles.size()], canvases, options, results[c], &steps[job]);
     }
   });
   for (cv::Mat& plane : observed) plane.release();
