@@ -411,6 +411,67 @@ void deconvolveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv:
   u(core_in_u).convertTo(target, result.depth());
 }
 
+// Per channel: the signal to deconvolve (φ(B) or B, CV_32F or CV_64F = `depth`) and the data mask, straight from
+// the interleaved input in one parallel pass over its rows (no full-size intermediate planes: at 12 MP each would be
+// ~100 MB). 8- and 16-bit input goes through a table per channel indexed by the code, formed by the same conversion
+// and the same φ as the per-pixel path (identical values; φ is then one lookup per pixel instead of an evaluation).
+void prepareChannels(const cv::Mat& blurred, const std::vector<ResponseCurve>& curves, bool irradiance, bool masking,
+                     double saturation, int depth, std::vector<cv::Mat>& observed, std::vector<cv::Mat>& masks) {
+  const int channels = blurred.channels(), image_depth = blurred.depth();
+  const auto curveOf = [&](int c) -> const ResponseCurve& { return curves.size() == 1 ? curves[0] : curves[c]; };
+  for (int c = 0; c < channels; ++c) {
+    observed[c].create(blurred.size(), depth);
+    if (masking) masks[c].create(blurred.size(), CV_8U);
+  }
+  const double scale = image_depth == CV_8U ? 1.0 / 255 : image_depth == CV_16U ? 1.0 / 65535 : 1.0;
+  const auto store = [&](int c, int y, int x, double value) {
+    if (depth == CV_32F) observed[c].ptr<float>(y)[x] = static_cast<float>(value);
+    else observed[c].ptr<double>(y)[x] = value;
+  };
+  const int codes = image_depth == CV_8U ? 256 : image_depth == CV_16U ? 65536 : 0;
+  if (codes > 0) {
+    cv::Mat code(1, codes, CV_32S), unit;
+    for (int v = 0; v < codes; ++v) code.at<int>(v) = v;
+    code.convertTo(code, image_depth);
+    code.convertTo(unit, CV_64F, scale);  // B in [0,1], as the per-pixel path converts it
+    std::vector<std::vector<double>> value_of(channels, std::vector<double>(codes));
+    std::vector<uchar> kept_of(codes);
+    for (int v = 0; v < codes; ++v) {
+      const double b = unit.at<double>(v);
+      for (int c = 0; c < channels; ++c) value_of[c][v] = irradiance ? curveOf(c).inverse(b) : b;
+      kept_of[v] = b < saturation ? 255 : 0;
+    }
+    cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
+      for (int y = rows.start; y < rows.end; ++y)
+        for (int c = 0; c < channels; ++c) {
+          uchar* mask = masking ? masks[c].ptr<uchar>(y) : nullptr;
+          for (int x = 0; x < blurred.cols; ++x) {
+            const int v = image_depth == CV_8U ? blurred.ptr<uchar>(y)[x * channels + c]
+                                               : blurred.ptr<ushort>(y)[x * channels + c];
+            store(c, y, x, value_of[c][v]);
+            if (mask) mask[x] = kept_of[v];
+          }
+        }
+    });
+    return;
+  }
+  cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
+    std::vector<double> unit(static_cast<size_t>(blurred.cols) * channels);
+    for (int y = rows.start; y < rows.end; ++y) {
+      cv::Mat row(1, blurred.cols * channels, CV_64F, unit.data());
+      blurred.row(y).reshape(1, 1).convertTo(row, CV_64F, scale);  // B in [0,1]
+      for (int c = 0; c < channels; ++c) {
+        uchar* mask = masking ? masks[c].ptr<uchar>(y) : nullptr;
+        for (int x = 0; x < blurred.cols; ++x) {
+          const double b = unit[static_cast<size_t>(x) * channels + c];
+          store(c, y, x, irradiance ? curveOf(c).inverse(b) : b);
+          if (mask) mask[x] = b < saturation ? 255 : 0;
+        }
+      }
+    }
+  });
+}
+
 }  // namespace
 
 DeconvolutionMethod parseDeconvolutionMethod(const std::string& name) {
@@ -443,6 +504,12 @@ void DeconvolutionOptions::check() const {
   if (!(wiener_nsr > 0)) throw InvalidInput("Wiener noise-to-signal ratio must be positive");
   if (!(saturation > 0 && saturation <= 1)) throw InvalidInput("saturation level must lie in (0, 1]");
   if (tile_size < 0 || tile_overlap < 0) throw InvalidInput("deconvolution tile size and overlap must be >= 0");
+}
+
+DeconvolutionOptions fastSchedule(DeconvolutionOptions options) {
+  options.inner_iterations = 8;
+  options.beta_start = options.beta_max = 128;
+  return options;
 }
 
 std::string DeconvolutionResult::summary() const {
@@ -493,33 +560,9 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   const int depth = options.single_precision ? CV_32F : CV_64F;
   const auto curveOf = [&](int c) -> const ResponseCurve& { return curves.size() == 1 ? curves[0] : curves[c]; };
 
-  // Per channel: the data mask and the signal to deconvolve (φ(B) or B), straight from the interleaved input in
-  // one pass over its rows (no full-size intermediate planes: at 12 MP each would be ~100 MB).
   std::vector<cv::Mat> observed(channels), masks(channels), results(channels);
-  for (int c = 0; c < channels; ++c) {
-    observed[c].create(blurred.size(), depth);
-    if (masking) masks[c].create(blurred.size(), CV_8U);
-    results[c].create(blurred.size(), depth);
-  }
-  const double scale = image_depth == CV_8U ? 1.0 / 255 : image_depth == CV_16U ? 1.0 / 65535 : 1.0;
-  cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
-    std::vector<double> unit(static_cast<size_t>(blurred.cols) * channels);
-    for (int y = rows.start; y < rows.end; ++y) {
-      cv::Mat row(1, blurred.cols * channels, CV_64F, unit.data());
-      blurred.row(y).reshape(1, 1).convertTo(row, CV_64F, scale);  // B in [0,1]
-      for (int c = 0; c < channels; ++c) {
-        const ResponseCurve& curve = curveOf(c);
-        uchar* mask = masking ? masks[c].ptr<uchar>(y) : nullptr;
-        for (int x = 0; x < blurred.cols; ++x) {
-          const double b = unit[static_cast<size_t>(x) * channels + c];
-          const double value = irradiance ? curve.inverse(b) : b;
-          if (depth == CV_32F) observed[c].ptr<float>(y)[x] = static_cast<float>(value);
-          else observed[c].ptr<double>(y)[x] = value;
-          if (mask) mask[x] = b < options.saturation ? 255 : 0;
-        }
-      }
-    }
-  });
+  prepareChannels(blurred, curves, irradiance, masking, options.saturation, depth, observed, masks);
+  for (int c = 0; c < channels; ++c) results[c].create(blurred.size(), depth);
   long long saturated = 0;
   for (int c = 0; c < channels && masking; ++c)
     saturated += static_cast<long long>(masks[c].total()) - cv::countNonZero(masks[c]);
