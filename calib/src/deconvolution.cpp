@@ -385,9 +385,9 @@ Canvases prepareCanvases(const std::vector<Tile>& tiles, const cv::Mat& kernel, 
   return canvases;
 }
 
-// Deconvolves observed(tile.data) (CV_32F or CV_64F) and writes its tile.core into `result`.
-void deconvolveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv::Mat& kernel, const Tile& tile,
-                    const Canvases& canvases, const DeconvolutionOptions& options, cv::Mat& result, int* iterations) {
+// Deconvolves observed(tile.data) (CV_32F or CV_64F) and returns the solution on tile.core (a view, not clamped).
+cv::Mat solveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv::Mat& kernel, const Tile& tile,
+                  const Canvases& canvases, const DeconvolutionOptions& options, int* iterations) {
   const int depth = options.single_precision ? CV_32F : CV_64F;
   cv::Mat f;
   observed(tile.data).convertTo(f, depth);
@@ -407,8 +407,23 @@ void deconvolveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv:
   }
   const cv::Rect core_in_u(padding.left + tile.core.x - tile.data.x, padding.top + tile.core.y - tile.data.y,
                            tile.core.width, tile.core.height);
-  cv::Mat target = result(tile.core);
-  u(core_in_u).convertTo(target, result.depth());
+  return u(core_in_u);
+}
+
+// A tile's solution `core` (CV_32F or CV_64F) clamped to [0,1] and mapped back with ψ (irradiance) into channel c
+// of the interleaved CV_64F `deblurred` at `where`: done by the tile's own job, so that no full-size plane of
+// solutions is kept and faulted in (3 × 48 MB at 12 MP) and ψ needs no pass of its own.
+void writeIntensity(const cv::Mat& core, cv::Rect where, int c, const ResponseCurve& curve, bool irradiance,
+                    cv::Mat& deblurred) {
+  const int channels = deblurred.channels();
+  for (int y = 0; y < core.rows; ++y) {
+    double* out = deblurred.ptr<double>(where.y + y) + static_cast<size_t>(where.x) * channels + c;
+    for (int x = 0; x < core.cols; ++x) {
+      const double solved_value = core.depth() == CV_32F ? double(std::min(std::max(core.ptr<float>(y)[x], 0.0f), 1.0f))
+                                                         : std::min(std::max(core.ptr<double>(y)[x], 0.0), 1.0);
+      out[static_cast<size_t>(x) * channels] = irradiance ? curve.forward(solved_value) : solved_value;
+    }
+  }
 }
 
 // Per channel: the signal to deconvolve (φ(B) or B, CV_32F or CV_64F = `depth`) and the data mask, straight from
@@ -535,8 +550,10 @@ cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const 
   cv::Mat result(observed.size(), CV_64F);
   std::vector<int> steps(tiles.size(), 0);
   cv::parallel_for_(cv::Range(0, static_cast<int>(tiles.size())), [&](const cv::Range& range) {
-    for (int t = range.start; t < range.end; ++t)
-      deconvolveTile(observed, data_mask, k, tiles[t], canvases, options, result, &steps[t]);
+    for (int t = range.start; t < range.end; ++t) {
+      cv::Mat target = result(tiles[t].core);
+      solveTile(observed, data_mask, k, tiles[t], canvases, options, &steps[t]).convertTo(target, CV_64F);
+    }
   });
   if (iterations) *iterations = steps[0];
   return result;
@@ -560,9 +577,8 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   const int depth = options.single_precision ? CV_32F : CV_64F;
   const auto curveOf = [&](int c) -> const ResponseCurve& { return curves.size() == 1 ? curves[0] : curves[c]; };
 
-  std::vector<cv::Mat> observed(channels), masks(channels), results(channels);
+  std::vector<cv::Mat> observed(channels), masks(channels);
   prepareChannels(blurred, curves, irradiance, masking, options.saturation, depth, observed, masks);
-  for (int c = 0; c < channels; ++c) results[c].create(blurred.size(), depth);
   long long saturated = 0;
   for (int c = 0; c < channels && masking; ++c)
     saturated += static_cast<long long>(masks[c].total()) - cv::countNonZero(masks[c]);
@@ -573,31 +589,19 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   const Canvases canvases = prepareCanvases(tiles, k, options);
   const int jobs = channels * static_cast<int>(tiles.size());
   std::vector<int> steps(jobs, 0);
+  DeconvolutionResult result;
+  result.deblurred.create(blurred.size(), CV_MAKETYPE(CV_64F, channels));
   cv::parallel_for_(cv::Range(0, jobs), [&](const cv::Range& range) {
     for (int job = range.start; job < range.end; ++job) {
       const int c = job / static_cast<int>(tiles.size());
-      deconvolveTile(observed[c], masks[c], k, tiles[job % tiles.size()], canvases, options, results[c], &steps[job]);
+      const Tile& tile = tiles[job % tiles.size()];
+      writeIntensity(solveTile(observed[c], masks[c], k, tile, canvases, options, &steps[job]), tile.core, c,
+                     curveOf(c), irradiance, result.deblurred);
     }
   });
   for (cv::Mat& plane : observed) plane.release();
   const auto solved = Clock::now();
 
-  // Clamped to [0,1] and mapped back with ψ (irradiance), written into the interleaved CV_64F result.
-  DeconvolutionResult result;
-  result.deblurred.create(blurred.size(), CV_MAKETYPE(CV_64F, channels));
-  cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
-    for (int y = rows.start; y < rows.end; ++y) {
-      double* out = result.deblurred.ptr<double>(y);
-      for (int c = 0; c < channels; ++c) {
-        const ResponseCurve& curve = curveOf(c);
-        for (int x = 0; x < blurred.cols; ++x) {
-          const double solved_value = depth == CV_32F ? double(std::min(std::max(results[c].ptr<float>(y)[x], 0.0f), 1.0f))
-                                                      : std::min(std::max(results[c].ptr<double>(y)[x], 0.0), 1.0);
-          out[static_cast<size_t>(x) * channels + c] = irradiance ? curve.forward(solved_value) : solved_value;
-        }
-      }
-    }
-  });
   result.options = options;
   result.iterations = steps[0];
   result.saturated_pixels = saturated;
