@@ -57,7 +57,6 @@ struct DeblurBenchArgs {
   bool bregman = DeconvolutionOptions{}.bregman;
   double beta_start = DeconvolutionOptions{}.beta_start;
   double beta_max = DeconvolutionOptions{}.beta_max;
-  bool fast = false;        // crfcal deblur --fast's schedule (fastSchedule) instead of --inner / --beta-*
   double phi_error = 0.02;  // RMSE of the perturbed φ (φ^a, a > 1 and a < 1 on alternate cases)
   bool estimated_phi = false;  // also deblur with the φ crfcal estimates from each simulated pair
   // The pair's sharp shot as extra information (residual deconvolution, Yuan et al. 2007): a simulated sharp shot
@@ -117,7 +116,6 @@ DeconvolutionOptions optionsOf(const DeblurBenchArgs& args) {
   options.bregman = args.bregman;
   options.beta_start = args.beta_start;
   options.beta_max = args.beta_max;
-  if (args.fast) options = fastSchedule(options);
   options.check();
   return options;
 }
@@ -431,11 +429,7 @@ const BenchRegistration registration(
       command.add_option("--inner", args->inner_iterations, "TV u/w alternations per beta")->check(CLI::Range(1, 100));
       command.add_flag("--bregman,!--no-bregman", args->bregman, "ADMM multipliers in the TV solver (default on)");
       command.add_option("--beta-start", args->beta_start, "First beta")->check(CLI::PositiveNumber);
-      auto* beta_max = command.add_option("--beta-max", args->beta_max, "Last beta")->check(CLI::PositiveNumber);
-      command.add_flag("--fast", args->fast, "The schedule of crfcal deblur --fast (8 TV steps at beta 128)")
-          ->excludes("--inner")
-          ->excludes("--beta-start")
-          ->excludes(beta_max);
+      command.add_option("--beta-max", args->beta_max, "Last beta")->check(CLI::PositiveNumber);
       command.add_option("--phi-error", args->phi_error, "RMSE of the perturbed phi of the 'phi off' columns")
           ->check(CLI::Range(0.001, 0.2));
       command.add_flag("--estimated-phi", args->estimated_phi,

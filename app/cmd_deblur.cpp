@@ -38,7 +38,6 @@ struct DeblurArgs {
   std::string method = "tv";
   double lambda = DeconvolutionOptions{}.lambda;
   int iterations = DeconvolutionOptions{}.inner_iterations;  // TV u-steps (fewer: faster, softer)
-  bool fast = false;  // fastSchedule: 8 TV steps at β = 128
   double wiener_nsr = DeconvolutionOptions{}.wiener_nsr;
   double saturation = DeconvolutionOptions{}.saturation;
   std::string sharp;  // the pair's sharp shot: residual deconvolution (Yuan et al. 2007)
@@ -112,7 +111,6 @@ int runDeblur(const DeblurArgs& args) {
   options.domain = parseDeconvolutionDomain(args.domain);
   options.lambda = args.lambda;
   options.inner_iterations = args.iterations;
-  if (args.fast) options = fastSchedule(options);
   options.wiener_nsr = args.wiener_nsr;
   options.saturation = args.saturation;
   options.check();
@@ -177,14 +175,9 @@ const CommandRegistration registration(
           ->check(CLI::IsMember({"tv", "wiener"}));
       command.add_option("--lambda", args->lambda, "TV data weight (larger: sharper, noisier)")
           ->check(CLI::PositiveNumber);
-      auto* iterations = command.add_option(
-          "--iterations", args->iterations,
-          "TV u-steps (default 25; 8 take about 45 % of the time for 0.9 dB less on the Levin set)")
+      command.add_option("--iterations", args->iterations,
+                         "TV u-steps (default 25; 8 take about 45 % of the time for 0.9 dB less on the Levin set)")
           ->check(CLI::Range(1, 500));
-      command.add_flag("--fast", args->fast,
-                       "TV: 8 steps at beta 128 instead of 25 at 256, about a third of the time (Levin bench: "
-                       "0.8 dB less, irradiance still 3.2 dB ahead of intensity)")
-          ->excludes(iterations);
       command.add_option("--wiener-nsr", args->wiener_nsr, "Wiener noise-to-signal ratio")->check(CLI::PositiveNumber);
       command.add_option("--saturation", args->saturation,
                          "Pixels at or above this level (0..1) are saturated and left out of the TV data term")

@@ -521,12 +521,6 @@ void DeconvolutionOptions::check() const {
   if (tile_size < 0 || tile_overlap < 0) throw InvalidInput("deconvolution tile size and overlap must be >= 0");
 }
 
-DeconvolutionOptions fastSchedule(DeconvolutionOptions options) {
-  options.inner_iterations = 8;
-  options.beta_start = options.beta_max = 128;
-  return options;
-}
-
 std::string DeconvolutionResult::summary() const {
   char text[320];
   std::snprintf(text, sizeof text,

@@ -76,11 +76,6 @@ struct DeconvolutionOptions {
   void check() const;          // throws InvalidInput naming the bad option
 };
 
-// The fast schedule (`crfcal deblur --fast`): `options` with 8 TV steps at a fixed β = 128 instead of 25 at β = 256,
-// about a third of the solver's time. Measured on the Levin bench (docs/RESULTS.md, "Speed at 12 MP"): irradiance
-// 28.52 dB instead of 29.34 dB, still +3.25 dB ahead of the intensity domain.
-DeconvolutionOptions fastSchedule(DeconvolutionOptions options);
-
 struct DeconvolutionResult {
   cv::Mat deblurred;                    // CV_64F in [0,1], intensity, same size and channels as the input
   DeconvolutionOptions options;         // as used
