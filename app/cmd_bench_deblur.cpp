@@ -179,7 +179,7 @@ int runSpeedBench(const DeblurBenchArgs& args, const DeconvolutionOptions& base)
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
   std::printf("%s\n", result.summary().c_str());
-  std::printf("stages (wall): phi and masks %.2f s, tile solves %.2f s, psi and output %.2f s\n",
+  std::printf("stages (wall): phi and masks %.2f s, tile solves with psi %.2f s, rest %.2f s\n",
               result.prepare_seconds, result.solve_seconds,
               result.seconds - result.prepare_seconds - result.solve_seconds);
   std::printf("wall %.1f s, CPU %.1f s, peak RSS %.0f MB; PSNR blurred %.2f dB, deblurred %.2f dB (%d px from the "

@@ -204,6 +204,36 @@ TEST(Deconvolution, EightSixteenBitAndFloatInputsAgree) {
   EXPECT_GT(rmse(from8.deblurred.reshape(1), unit.reshape(1)), 0.01);  // not vacuous: the result is not B
 }
 
+// 8- and 16-bit input goes through per-code tables of φ and the mask: exactly the values of the per-pixel path
+// that a floating-point copy of the same codes takes (8 TV steps at β = 128 to keep the test short).
+TEST(Deconvolution, CodeTablesGiveThePerPixelValues) {
+  const cv::Mat grey = sharpImage()(cv::Rect(60, 60, 80, 70)).clone();
+  const cv::Mat kernel = test::levinKernel(2);
+  const ResponseCurve curve = gammaCurve(2.2);
+  std::vector<cv::Mat> planes{quantize(irradianceBlur(grey, curve, kernel), 8),
+                              quantize(irradianceBlur(grey, curve, kernel, 4.0), 8)};  // overexposed: masked pixels
+  cv::Mat unit, eight, sixteen, eight_as_float, sixteen_as_float;
+  cv::merge(planes, unit);
+  unit.convertTo(eight, CV_8UC2, 255.0);
+  eight.convertTo(sixteen, CV_16UC2, 257.0);
+  eight.convertTo(eight_as_float, CV_64FC2, 1.0 / 255);
+  sixteen.convertTo(sixteen_as_float, CV_64FC2, 1.0 / 65535);
+  DeconvolutionOptions fast;
+  fast.inner_iterations = 8;
+  fast.beta_start = fast.beta_max = 128;
+  const DeconvolutionResult from8 = deconvolve(eight, kernel, {curve, gammaCurve(1.8)}, fast);
+  const DeconvolutionResult from8f = deconvolve(eight_as_float, kernel, {curve, gammaCurve(1.8)}, fast);
+  EXPECT_EQ(from8.iterations, 8);
+  ASSERT_GT(from8.saturated_pixels, 0);
+  EXPECT_EQ(from8f.saturated_pixels, from8.saturated_pixels);
+  EXPECT_EQ(cv::norm(from8.deblurred, from8f.deblurred, cv::NORM_INF), 0.0);
+  const DeconvolutionResult from16 = deconvolve(sixteen, kernel, {curve}, fast);
+  const DeconvolutionResult from16f = deconvolve(sixteen_as_float, kernel, {curve}, fast);
+  EXPECT_EQ(from16f.saturated_pixels, from16.saturated_pixels);
+  EXPECT_EQ(cv::norm(from16.deblurred, from16f.deblurred, cv::NORM_INF), 0.0);
+  EXPECT_GT(cv::norm(from8.deblurred, unit, cv::NORM_INF), 0.01);  // not vacuous: the result is not B
+}
+
 // The default CV_32F DFTs against the CV_64F reference: the same solution to far below one 8-bit level.
 TEST(Deconvolution, SinglePrecisionMatchesDoublePrecision) {
   const cv::Mat sharp = sharpImage()(cv::Rect(70, 70, 96, 96)).clone();

@@ -4,12 +4,16 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <map>
+#include <utility>
+#include <vector>
 
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
+#include "packed_spectrum.hpp"
 
 namespace crfcal {
 namespace {
@@ -120,22 +124,83 @@ cv::Mat wienerSolve(const cv::Mat& f, const cv::Mat& kernel_spectrum, double nsr
   return realInverse(quotient);
 }
 
+// ---- the u-step's operators on one FFT canvas --------------------------------------------------------------------
+// They depend only on the canvas size, the kernel and β, so every tile of the same padded size shares them: formed
+// once per size (at 12 MP a handful of sizes for 60 (channel, tile) jobs) instead of four DFTs and a dozen passes
+// per tile.
+
+// A real, even operator's packed spectrum (zero imaginary parts) with its value copied into both slots of every
+// (re, im) pair: multiplying a packed spectrum by it element-wise (cv::multiply) is then the spectral product.
+cv::Mat bothSlots(const cv::Mat& real_spectrum) {
+  return multiply(cv::Mat::ones(real_spectrum.size(), real_spectrum.type()), real_spectrum);
+}
+
+struct CanvasOperators {
+  cv::Mat kernel_spectrum;   // K̂
+  cv::Mat gradient_energy;   // |D̂x|² + |D̂y|² (TV only)
+  cv::Mat kernel_energy;     // |K̂|²
+  cv::Mat identity;          // ones at every frequency
+  cv::Mat first_reciprocal;  // R at options.beta_start (both slots)
+  cv::Mat first_data_gain;   // G = λ/β conj(K̂) R at options.beta_start
+
+  // R = 1 / (|D̂|² + λ/β |K̂|²) (both slots) and G = λ/β conj(K̂) R at `beta`.
+  void stepOperators(double beta, double lambda, cv::Mat& reciprocal, cv::Mat& data_gain) const {
+    const double ratio = lambda / beta;
+    cv::divide(1.0, bothSlots(gradient_energy + ratio * kernel_energy), reciprocal);
+    cv::mulSpectrums(reciprocal.mul(identity), kernel_spectrum, data_gain, 0, true);
+    data_gain *= ratio;
+  }
+};
+
+CanvasOperators canvasOperators(const cv::Mat& kernel, cv::Size size, const DeconvolutionOptions& options) {
+  const int depth = options.single_precision ? CV_32F : CV_64F;
+  CanvasOperators canvas;
+  canvas.kernel_spectrum = kernelSpectrum(kernel, size, depth);
+  if (options.method != DeconvolutionMethod::TotalVariation) return canvas;
+  const cv::Mat dx = differenceSpectrum(size, true, depth), dy = differenceSpectrum(size, false, depth);
+  canvas.gradient_energy = multiply(dx, dx, true) + multiply(dy, dy, true);
+  canvas.kernel_energy = multiply(canvas.kernel_spectrum, canvas.kernel_spectrum, true);
+  canvas.identity = identitySpectrum(size, depth);
+  canvas.stepOperators(options.beta_start, options.lambda, canvas.first_reciprocal, canvas.first_data_gain);
+  return canvas;
+}
+
 // ---- TV solver -----------------------------------------------------------------------------------------------
 // Everything between the FFTs is fused into a few passes over buffers allocated once per tile (as cv::Mat
 // expressions each operation allocated and faulted in a full-size temporary: 6–11 % more CPU at 12 MP). The FFTs
 // themselves are most of the time (docs/RESULTS.md, "Speed at 12 MP").
 
-// The w-step and the ADMM multiplier update in one pass (Goldstein & Osher 2009): g = ∇u + b, w = shrink(g, 1/β)
-// (isotropic), b ← g − w; writes the u-step's field w − b (bregman; b starts at 0) or w into (px, py). ∇ is
-// forwardDifference: (Dx u)(p) = u(p + eₓ) − u(p) with wrap-around.
+// The w-step and the ADMM multiplier update (Goldstein & Osher 2009): g = ∇u + b, w = shrink(g, 1/β) (isotropic),
+// b ← g − w; the u-step's field is p = w − b (bregman; b starts at 0) or w. ∇ is forwardDifference:
+// (Dx u)(p) = u(p + eₓ) − u(p) with wrap-around. Fused with Dᵀp = Dxᵀ px + Dyᵀ py, (Dxᵀ g)(p) = g(p − eₓ) − g(p),
+// the adjoint formed in the image domain (two FFTs fewer per u-step than through spectra): one pass over u, b and
+// the output, p kept for two rows only (row 0's adjoint needs the last row's py: it is written last).
 template <typename T>
-void shrinkGradient(const cv::Mat& u, double beta, bool bregman, cv::Mat& bx, cv::Mat& by, cv::Mat& px, cv::Mat& py) {
-  const int rows = u.rows, cols = u.cols;
-  const T threshold = static_cast<T>(1.0 / beta), tiny = static_cast<T>(1e-12);
-  for (int y = 0; y < rows; ++y) {
-    const T* here = u.ptr<T>(y);
-    const T* below = u.ptr<T>(y + 1 < rows ? y + 1 : 0);
-    T *bxr = bx.ptr<T>(y), *byr = by.ptr<T>(y), *pxr = px.ptr<T>(y), *pyr = py.ptr<T>(y);
+class ShrinkAndAdjoint {
+ public:
+  explicit ShrinkAndAdjoint(int cols) : rows_(5 * static_cast<size_t>(cols)), cols_(cols) {}
+
+  void operator()(const cv::Mat& u, double beta, bool bregman, cv::Mat& bx, cv::Mat& by, cv::Mat& adjoint) {
+    const int rows = u.rows, cols = cols_;
+    T *px = row(0), *py = row(1), *py_above = row(2), *px_first = row(3), *py_first = row(4);
+    for (int y = 0; y < rows; ++y) {
+      shrinkRow(u.ptr<T>(y), u.ptr<T>(y + 1 < rows ? y + 1 : 0), beta, bregman, bx.ptr<T>(y), by.ptr<T>(y), px, py);
+      if (y == 0) {
+        std::copy(px, px + cols, px_first);
+        std::copy(py, py + cols, py_first);
+      } else {
+        adjointRow(px, py, py_above, adjoint.ptr<T>(y));
+      }
+      std::swap(py, py_above);
+    }
+    adjointRow(px_first, py_first, py_above, adjoint.ptr<T>(0));  // py_above: the last row's
+  }
+
+ private:
+  T* row(int i) { return rows_.data() + static_cast<size_t>(i) * cols_; }
+
+  void shrinkRow(const T* here, const T* below, double beta, bool bregman, T* bxr, T* byr, T* pxr, T* pyr) const {
+    const T threshold = static_cast<T>(1.0 / beta), tiny = static_cast<T>(1e-12);
     const auto step = [&](int x, T right) {
       const T gx = right - here[x] + bxr[x];
       const T gy = below[x] - here[x] + byr[x];
@@ -152,23 +217,18 @@ void shrinkGradient(const cv::Mat& u, double beta, bool bregman, cv::Mat& bx, cv
         pyr[x] = wy;
       }
     };
-    for (int x = 0; x + 1 < cols; ++x) step(x, here[x + 1]);
-    step(cols - 1, here[0]);
+    for (int x = 0; x + 1 < cols_; ++x) step(x, here[x + 1]);
+    step(cols_ - 1, here[0]);
   }
-}
 
-// Dᵀp = Dxᵀ px + Dyᵀ py, (Dxᵀ g)(p) = g(p − eₓ) − g(p): the adjoint of forwardDifference, formed in the image
-// domain (two FFTs fewer per u-step than through spectra).
-template <typename T>
-void gradientAdjoint(const cv::Mat& px, const cv::Mat& py, cv::Mat& out) {
-  const int rows = px.rows, cols = px.cols;
-  for (int y = 0; y < rows; ++y) {
-    const T *pxr = px.ptr<T>(y), *pyr = py.ptr<T>(y), *above = py.ptr<T>(y > 0 ? y - 1 : rows - 1);
-    T* o = out.ptr<T>(y);
-    o[0] = (pxr[cols - 1] - pxr[0]) + (above[0] - pyr[0]);
-    for (int x = 1; x < cols; ++x) o[x] = (pxr[x - 1] - pxr[x]) + (above[x] - pyr[x]);
+  void adjointRow(const T* pxr, const T* pyr, const T* above, T* o) const {
+    o[0] = (pxr[cols_ - 1] - pxr[0]) + (above[0] - pyr[0]);
+    for (int x = 1; x < cols_; ++x) o[x] = (pxr[x - 1] - pxr[x]) + (above[x] - pyr[x]);
   }
-}
+
+  std::vector<T> rows_;  // px, py, py of the row above, px and py of row 0
+  int cols_;
+};
 
 // ‖next − u‖ / ‖next‖ in one pass.
 template <typename T>
@@ -185,10 +245,26 @@ double relativeChange(const cv::Mat& next, const cv::Mat& u) {
   return std::sqrt(difference) / std::max(std::sqrt(norm), 1e-12);
 }
 
-// A real, even operator's packed spectrum (zero imaginary parts) with its value copied into both slots of every
-// (re, im) pair: multiplying a packed spectrum by it element-wise (cv::multiply) is then the spectral product.
-cv::Mat bothSlots(const cv::Mat& real_spectrum) {
-  return multiply(cv::Mat::ones(real_spectrum.size(), real_spectrum.type()), real_spectrum);
+// The runs of pixels left out of the data term (mask 0): the MM fill rewrites only these.
+struct MaskedOutRun {
+  int y, x0, x1;  // [x0, x1) of row y
+};
+
+std::vector<MaskedOutRun> maskedOutRuns(const cv::Mat& mask) {
+  std::vector<MaskedOutRun> runs;
+  for (int y = 0; y < mask.rows; ++y) {
+    const uchar* m = mask.ptr<uchar>(y);
+    for (int x = 0; x < mask.cols;) {
+      if (m[x]) {
+        ++x;
+        continue;
+      }
+      const int x0 = x;
+      while (x < mask.cols && !m[x]) ++x;
+      runs.push_back({y, x0, x});
+    }
+  }
+  return runs;
 }
 
 // FTVd (Wang et al. 2008, Alg. 1 with continuation) with the masked data term minimised by MM (see header).
@@ -197,53 +273,54 @@ cv::Mat bothSlots(const cv::Mat& real_spectrum) {
 // of saturated regions: −1 dB on the tests' images.) The u-step
 //   (DᵀD + λ/β KᵀK) u = Dᵀw + λ/β Kᵀḟ
 // is diagonal in Fourier: Û = F(Dᵀw) · R + F(ḟ) · G with R = 1 / (|D̂x|² + |D̂y|² + λ/β |K̂|²) and
-// G = λ/β · conj(K̂) · R, both fixed per β.
+// G = λ/β · conj(K̂) · R, both fixed per β (the first β's shared by every tile of the canvas size). Between the FFTs
+// three passes: shrinkage with Dᵀ, the spectral u-step with the next prediction's spectrum Û · K̂, and the change of
+// u; ḟ keeps f where M = 1, and only its masked-out runs are rewritten.
 template <typename T>
-cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const cv::Mat& kernel_spectrum,
+cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const CanvasOperators& canvas,
                             const DeconvolutionOptions& options, int* iterations) {
   const cv::Size size = f.size();
   const int depth = f.depth();
-  const cv::Mat dx = differenceSpectrum(size, true, depth), dy = differenceSpectrum(size, false, depth);
-  const cv::Mat gradient_energy = multiply(dx, dx, true) + multiply(dy, dy, true);
-  const cv::Mat kernel_energy = multiply(kernel_spectrum, kernel_spectrum, true);
-  const cv::Mat identity = identitySpectrum(size, depth);
-  const bool masked = cv::countNonZero(mask) < mask.rows * mask.cols;
+  const std::vector<MaskedOutRun> runs = maskedOutRuns(mask);
+  const bool masked = !runs.empty();
 
   // buffers, allocated once
-  cv::Mat u = f.clone(), next(size, depth), fill(size, depth), adjoint(size, depth);
+  cv::Mat u = f.clone(), next(size, depth), fill = f.clone(), adjoint(size, depth);
   cv::Mat bx = cv::Mat::zeros(size, depth), by = cv::Mat::zeros(size, depth);  // scaled ADMM multipliers of w = ∇u
-  cv::Mat px(size, depth), py(size, depth);
-  cv::Mat u_spectrum, fill_spectrum, adjoint_spectrum, product(size, depth), reciprocal, data_gain, fixed_data;
+  cv::Mat u_spectrum, f_spectrum, fill_spectrum, adjoint_spectrum, prediction, reciprocal, data_gain, fixed_data;
+  ShrinkAndAdjoint<T> shrink_and_adjoint(size.width);
   cv::dft(u, u_spectrum);
-  cv::dft(f, fill_spectrum);
+  if (masked) cv::mulSpectrums(u_spectrum, canvas.kernel_spectrum, prediction, 0);  // K ⊗ u's spectrum
+  else f_spectrum = u_spectrum.clone();
   int steps = 0;
   for (double beta = options.beta_start; beta <= options.beta_max * (1 + 1e-12); beta *= options.beta_factor) {
-    const double ratio = options.lambda / beta;
-    cv::divide(1.0, bothSlots(gradient_energy + ratio * kernel_energy), reciprocal);
-    cv::mulSpectrums(reciprocal.mul(identity), kernel_spectrum, data_gain, 0, true);
-    data_gain *= ratio;
-    if (!masked) cv::mulSpectrums(fill_spectrum, data_gain, fixed_data, 0);  // Kᵀf: the same at every step
+    if (beta == options.beta_start) {
+      reciprocal = canvas.first_reciprocal;
+      data_gain = canvas.first_data_gain;
+    } else {  // fresh buffers: the first β's are the canvas's, shared with other tiles
+      reciprocal.release();
+      data_gain.release();
+      canvas.stepOperators(beta, options.lambda, reciprocal, data_gain);
+    }
+    if (!masked) cv::mulSpectrums(f_spectrum, data_gain, fixed_data, 0);  // Kᵀf: the same at every step
     if (beta > options.beta_start) {  // the scaled multiplier b = y / β follows β
       bx /= options.beta_factor;
       by /= options.beta_factor;
     }
     for (int inner = 0; inner < options.inner_iterations; ++inner) {
-      if (masked) {  // MM: masked-out data replaced by the current prediction K ⊗ u
-        cv::mulSpectrums(u_spectrum, kernel_spectrum, product, 0);
-        cv::dft(product, fill, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
-        f.copyTo(fill, mask);
+      if (masked) {  // MM: masked-out data replaced by the current prediction K ⊗ u (the adjoint's buffer, free here)
+        cv::dft(prediction, adjoint, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
+        for (const MaskedOutRun& run : runs)
+          std::copy(adjoint.ptr<T>(run.y) + run.x0, adjoint.ptr<T>(run.y) + run.x1, fill.ptr<T>(run.y) + run.x0);
         cv::dft(fill, fill_spectrum);
       }
-      shrinkGradient<T>(u, beta, options.bregman, bx, by, px, py);
-      gradientAdjoint<T>(px, py, adjoint);
+      shrink_and_adjoint(u, beta, options.bregman, bx, by, adjoint);
       cv::dft(adjoint, adjoint_spectrum);
-      cv::multiply(adjoint_spectrum, reciprocal, u_spectrum);
-      if (masked) {
-        cv::mulSpectrums(fill_spectrum, data_gain, product, 0);
-        u_spectrum += product;
-      } else {
-        u_spectrum += fixed_data;
-      }
+      if (masked)
+        packed::uStepSpectrum<T>(adjoint_spectrum, reciprocal, fill_spectrum, data_gain, canvas.kernel_spectrum,
+                                 u_spectrum, prediction);
+      else
+        packed::uStepSpectrum<T>(adjoint_spectrum, reciprocal, fixed_data, u_spectrum);
       cv::dft(u_spectrum, next, cv::DFT_INVERSE | cv::DFT_SCALE | cv::DFT_REAL_OUTPUT);
       const double change = relativeChange<T>(next, u);
       std::swap(u, next);
@@ -288,30 +365,126 @@ std::vector<Tile> planTiles(cv::Size image, const cv::Mat& kernel, const Deconvo
   return tiles;
 }
 
-// Deconvolves observed(tile.data) (CV_32F or CV_64F) and writes its tile.core into `result`.
-void deconvolveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv::Mat& kernel, const Tile& tile,
-                    const DeconvolutionOptions& options, cv::Mat& result, int* iterations) {
+// The operators of every canvas size the tiles use, keyed by (width, height), formed in parallel.
+using Canvases = std::map<std::pair<int, int>, CanvasOperators>;
+
+Canvases prepareCanvases(const std::vector<Tile>& tiles, const cv::Mat& kernel, const DeconvolutionOptions& options) {
+  Canvases canvases;
+  for (const Tile& tile : tiles) {
+    const cv::Size size = choosePadding(tile.data.size(), kernel).padded;
+    canvases[{size.width, size.height}];
+  }
+  std::vector<Canvases::value_type*> entries;
+  for (auto& entry : canvases) entries.push_back(&entry);
+  cv::parallel_for_(cv::Range(0, static_cast<int>(entries.size())), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      const cv::Size size(entries[i]->first.first, entries[i]->first.second);
+      entries[i]->second = canvasOperators(kernel, size, options);
+    }
+  });
+  return canvases;
+}
+
+// Deconvolves observed(tile.data) (CV_32F or CV_64F) and returns the solution on tile.core (a view, not clamped).
+cv::Mat solveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv::Mat& kernel, const Tile& tile,
+                  const Canvases& canvases, const DeconvolutionOptions& options, int* iterations) {
   const int depth = options.single_precision ? CV_32F : CV_64F;
   cv::Mat f;
   observed(tile.data).convertTo(f, depth);
   const Padding padding = choosePadding(f.size(), kernel);
   const cv::Mat padded = reflectPad(f, padding);
-  const cv::Mat kernel_spectrum = kernelSpectrum(kernel, padding.padded, depth);
+  const CanvasOperators& canvas = canvases.at({padding.padded.width, padding.padded.height});
   cv::Mat u;
   if (options.method == DeconvolutionMethod::Wiener) {
-    u = wienerSolve(padded, kernel_spectrum, options.wiener_nsr);
+    u = wienerSolve(padded, canvas.kernel_spectrum, options.wiener_nsr);
     if (iterations) *iterations = 1;
   } else {
     cv::Mat mask(padding.padded, CV_8U, cv::Scalar(options.free_boundary ? 0 : 255));
     if (data_mask.empty()) mask(padding.interior()).setTo(255);
     else cv::Mat(data_mask(tile.data) != 0).copyTo(mask(padding.interior()));
-    u = depth == CV_32F ? totalVariationSolve<float>(padded, mask, kernel_spectrum, options, iterations)
-                        : totalVariationSolve<double>(padded, mask, kernel_spectrum, options, iterations);
+    u = depth == CV_32F ? totalVariationSolve<float>(padded, mask, canvas, options, iterations)
+                        : totalVariationSolve<double>(padded, mask, canvas, options, iterations);
   }
   const cv::Rect core_in_u(padding.left + tile.core.x - tile.data.x, padding.top + tile.core.y - tile.data.y,
                            tile.core.width, tile.core.height);
-  cv::Mat target = result(tile.core);
-  u(core_in_u).convertTo(target, result.depth());
+  return u(core_in_u);
+}
+
+// A tile's solution `core` (CV_32F or CV_64F) clamped to [0,1] and mapped back with ψ (irradiance) into channel c
+// of the interleaved CV_64F `deblurred` at `where`: done by the tile's own job, so that no full-size plane of
+// solutions is kept and faulted in (3 × 48 MB at 12 MP) and ψ needs no pass of its own.
+void writeIntensity(const cv::Mat& core, cv::Rect where, int c, const ResponseCurve& curve, bool irradiance,
+                    cv::Mat& deblurred) {
+  const int channels = deblurred.channels();
+  for (int y = 0; y < core.rows; ++y) {
+    double* out = deblurred.ptr<double>(where.y + y) + static_cast<size_t>(where.x) * channels + c;
+    for (int x = 0; x < core.cols; ++x) {
+      const double solved_value = core.depth() == CV_32F ? double(std::min(std::max(core.ptr<float>(y)[x], 0.0f), 1.0f))
+                                                         : std::min(std::max(core.ptr<double>(y)[x], 0.0), 1.0);
+      out[static_cast<size_t>(x) * channels] = irradiance ? curve.forward(solved_value) : solved_value;
+    }
+  }
+}
+
+// Per channel: the signal to deconvolve (φ(B) or B, CV_32F or CV_64F = `depth`) and the data mask, straight from
+// the interleaved input in one parallel pass over its rows (no full-size intermediate planes: at 12 MP each would be
+// ~100 MB). 8- and 16-bit input goes through a table per channel indexed by the code, formed by the same conversion
+// and the same φ as the per-pixel path (identical values; φ is then one lookup per pixel instead of an evaluation).
+void prepareChannels(const cv::Mat& blurred, const std::vector<ResponseCurve>& curves, bool irradiance, bool masking,
+                     double saturation, int depth, std::vector<cv::Mat>& observed, std::vector<cv::Mat>& masks) {
+  const int channels = blurred.channels(), image_depth = blurred.depth();
+  const auto curveOf = [&](int c) -> const ResponseCurve& { return curves.size() == 1 ? curves[0] : curves[c]; };
+  for (int c = 0; c < channels; ++c) {
+    observed[c].create(blurred.size(), depth);
+    if (masking) masks[c].create(blurred.size(), CV_8U);
+  }
+  const double scale = image_depth == CV_8U ? 1.0 / 255 : image_depth == CV_16U ? 1.0 / 65535 : 1.0;
+  const auto store = [&](int c, int y, int x, double value) {
+    if (depth == CV_32F) observed[c].ptr<float>(y)[x] = static_cast<float>(value);
+    else observed[c].ptr<double>(y)[x] = value;
+  };
+  const int codes = image_depth == CV_8U ? 256 : image_depth == CV_16U ? 65536 : 0;
+  if (codes > 0) {
+    cv::Mat code(1, codes, CV_32S), unit;
+    for (int v = 0; v < codes; ++v) code.at<int>(v) = v;
+    code.convertTo(code, image_depth);
+    code.convertTo(unit, CV_64F, scale);  // B in [0,1], as the per-pixel path converts it
+    std::vector<std::vector<double>> value_of(channels, std::vector<double>(codes));
+    std::vector<uchar> kept_of(codes);
+    for (int v = 0; v < codes; ++v) {
+      const double b = unit.at<double>(v);
+      for (int c = 0; c < channels; ++c) value_of[c][v] = irradiance ? curveOf(c).inverse(b) : b;
+      kept_of[v] = b < saturation ? 255 : 0;
+    }
+    cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
+      for (int y = rows.start; y < rows.end; ++y)
+        for (int c = 0; c < channels; ++c) {
+          uchar* mask = masking ? masks[c].ptr<uchar>(y) : nullptr;
+          for (int x = 0; x < blurred.cols; ++x) {
+            const int v = image_depth == CV_8U ? blurred.ptr<uchar>(y)[x * channels + c]
+                                               : blurred.ptr<ushort>(y)[x * channels + c];
+            store(c, y, x, value_of[c][v]);
+            if (mask) mask[x] = kept_of[v];
+          }
+        }
+    });
+    return;
+  }
+  cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
+    std::vector<double> unit(static_cast<size_t>(blurred.cols) * channels);
+    for (int y = rows.start; y < rows.end; ++y) {
+      cv::Mat row(1, blurred.cols * channels, CV_64F, unit.data());
+      blurred.row(y).reshape(1, 1).convertTo(row, CV_64F, scale);  // B in [0,1]
+      for (int c = 0; c < channels; ++c) {
+        uchar* mask = masking ? masks[c].ptr<uchar>(y) : nullptr;
+        for (int x = 0; x < blurred.cols; ++x) {
+          const double b = unit[static_cast<size_t>(x) * channels + c];
+          store(c, y, x, irradiance ? curveOf(c).inverse(b) : b);
+          if (mask) mask[x] = b < saturation ? 255 : 0;
+        }
+      }
+    }
+  });
 }
 
 }  // namespace
@@ -367,10 +540,14 @@ cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const 
     throw InvalidInput("deconvolution mask and image differ in size");
   const cv::Mat k = normalizeKernel(kernel);
   const std::vector<Tile> tiles = planTiles(observed.size(), k, options);
+  const Canvases canvases = prepareCanvases(tiles, k, options);
   cv::Mat result(observed.size(), CV_64F);
   std::vector<int> steps(tiles.size(), 0);
   cv::parallel_for_(cv::Range(0, static_cast<int>(tiles.size())), [&](const cv::Range& range) {
-    for (int t = range.start; t < range.end; ++t) deconvolveTile(observed, data_mask, k, tiles[t], options, result, &steps[t]);
+    for (int t = range.start; t < range.end; ++t) {
+      cv::Mat target = result(tiles[t].core);
+      solveTile(observed, data_mask, k, tiles[t], canvases, options, &steps[t]).convertTo(target, CV_64F);
+    }
   });
   if (iterations) *iterations = steps[0];
   return result;
@@ -394,33 +571,8 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   const int depth = options.single_precision ? CV_32F : CV_64F;
   const auto curveOf = [&](int c) -> const ResponseCurve& { return curves.size() == 1 ? curves[0] : curves[c]; };
 
-  // Per channel: the data mask and the signal to deconvolve (φ(B) or B), straight from the interleaved input in
-  // one pass over its rows (no full-size intermediate planes: at 12 MP each would be ~100 MB).
-  std::vector<cv::Mat> observed(channels), masks(channels), results(channels);
-  for (int c = 0; c < channels; ++c) {
-    observed[c].create(blurred.size(), depth);
-    if (masking) masks[c].create(blurred.size(), CV_8U);
-    results[c].create(blurred.size(), depth);
-  }
-  const double scale = image_depth == CV_8U ? 1.0 / 255 : image_depth == CV_16U ? 1.0 / 65535 : 1.0;
-  cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
-    std::vector<double> unit(static_cast<size_t>(blurred.cols) * channels);
-    for (int y = rows.start; y < rows.end; ++y) {
-      cv::Mat row(1, blurred.cols * channels, CV_64F, unit.data());
-      blurred.row(y).reshape(1, 1).convertTo(row, CV_64F, scale);  // B in [0,1]
-      for (int c = 0; c < channels; ++c) {
-        const ResponseCurve& curve = curveOf(c);
-        uchar* mask = masking ? masks[c].ptr<uchar>(y) : nullptr;
-        for (int x = 0; x < blurred.cols; ++x) {
-          const double b = unit[static_cast<size_t>(x) * channels + c];
-          const double value = irradiance ? curve.inverse(b) : b;
-          if (depth == CV_32F) observed[c].ptr<float>(y)[x] = static_cast<float>(value);
-          else observed[c].ptr<double>(y)[x] = value;
-          if (mask) mask[x] = b < options.saturation ? 255 : 0;
-        }
-      }
-    }
-  });
+  std::vector<cv::Mat> observed(channels), masks(channels);
+  prepareChannels(blurred, curves, irradiance, masking, options.saturation, depth, observed, masks);
   long long saturated = 0;
   for (int c = 0; c < channels && masking; ++c)
     saturated += static_cast<long long>(masks[c].total()) - cv::countNonZero(masks[c]);
@@ -428,33 +580,22 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
 
   // Every (channel, tile) pair is one job, so that two cores stay busy whatever the number of channels.
   const std::vector<Tile> tiles = planTiles(blurred.size(), k, options);
+  const Canvases canvases = prepareCanvases(tiles, k, options);
   const int jobs = channels * static_cast<int>(tiles.size());
   std::vector<int> steps(jobs, 0);
+  DeconvolutionResult result;
+  result.deblurred.create(blurred.size(), CV_MAKETYPE(CV_64F, channels));
   cv::parallel_for_(cv::Range(0, jobs), [&](const cv::Range& range) {
     for (int job = range.start; job < range.end; ++job) {
       const int c = job / static_cast<int>(tiles.size());
-      deconvolveTile(observed[c], masks[c], k, tiles[job % tiles.size()], options, results[c], &steps[job]);
+      const Tile& tile = tiles[job % tiles.size()];
+      writeIntensity(solveTile(observed[c], masks[c], k, tile, canvases, options, &steps[job]), tile.core, c,
+                     curveOf(c), irradiance, result.deblurred);
     }
   });
   for (cv::Mat& plane : observed) plane.release();
   const auto solved = Clock::now();
 
-  // Clamped to [0,1] and mapped back with ψ (irradiance), written into the interleaved CV_64F result.
-  DeconvolutionResult result;
-  result.deblurred.create(blurred.size(), CV_MAKETYPE(CV_64F, channels));
-  cv::parallel_for_(cv::Range(0, blurred.rows), [&](const cv::Range& rows) {
-    for (int y = rows.start; y < rows.end; ++y) {
-      double* out = result.deblurred.ptr<double>(y);
-      for (int c = 0; c < channels; ++c) {
-        const ResponseCurve& curve = curveOf(c);
-        for (int x = 0; x < blurred.cols; ++x) {
-          const double solved_value = depth == CV_32F ? double(std::min(std::max(results[c].ptr<float>(y)[x], 0.0f), 1.0f))
-                                                      : std::min(std::max(results[c].ptr<double>(y)[x], 0.0), 1.0);
-          out[static_cast<size_t>(x) * channels + c] = irradiance ? curve.forward(solved_value) : solved_value;
-        }
-      }
-    }
-  });
   result.options = options;
   result.iterations = steps[0];
   result.saturated_pixels = saturated;

@@ -85,7 +85,7 @@ struct DeconvolutionResult {
   cv::Size padded_size;                 // FFT size of the first tile
   double seconds = 0;                   // wall time
   double prepare_seconds = 0;           // of which: φ(B) and the data masks
-  double solve_seconds = 0;             // the (channel, tile) solves; the rest is ψ and the output
+  double solve_seconds = 0;             // the (channel, tile) solves with ψ of their cores; the rest: releases
   std::string summary() const;
 };
 
