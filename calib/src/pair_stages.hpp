@@ -136,8 +136,12 @@ CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& na
 // loop's at the same thread count). A channel fitted with the chroma model (a subsampled sharp
 // JPEG) that leaves too few pixels falls back to the pointwise model; `fallback_warnings` then gets a line (the
 // rounds stage reports it, the ratio stage does not repeat it). Any other failure is rethrown, in channel order.
+// choose_chroma_model (the rounds stage, with options.chroma_choice enabled): a modelled channel is also fitted
+// pointwise, in the same parallel batch, and keeps the model only if ChromaModelChoice says so; otherwise its bound
+// is dropped (later refits use the pointwise model too). The scale is recorded in result.chroma_model_scale.
 std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, const std::vector<std::string>& names,
-                                                const cv::Mat& kernel, bool fallback_warnings);
+                                                const cv::Mat& kernel, bool fallback_warnings,
+                                                bool choose_chroma_model = false);
 
 // ---- kernel↔φ rounds (pair_stage_rounds.cpp)
 void fitKernelPhiRounds(PairCalibrationState& state);
