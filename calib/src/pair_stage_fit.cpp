@@ -154,6 +154,8 @@ std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, con
       if (!keepsChromaModel(state, name, *fits[i], *pointwise)) {
         state.window_sharp_error.erase(name);  // later refits (ratio evidence) use the pointwise model too
         fits[i] = std::move(pointwise);
+      } else {
+        state.pointwise_fits[name] = std::move(*pointwise);
       }
     }
     out[name] = std::move(*fits[i]);

@@ -78,6 +78,9 @@ struct PairCalibrationState {
 
   // fit window: both shots inside result.fit_window, per channel, in the images' depth (0 outside the overlap)
   std::map<std::string, cv::Mat> window_sharp, window_blurred, window_sharp_error;
+  // The pointwise fits of the channels that kept the chroma model (fitChannels' choice): the effect diagnostics see
+  // these, so that their decisions — and G — are those of the pointwise model.
+  std::map<std::string, CrfFitResult> pointwise_fits;
 
   // rounds
   CrfFitOptions fit_options;      // options.fit; fit_ratio cleared when the small-blur hold applies
