@@ -68,7 +68,7 @@ cv::Mat excludedByErrorBound(const cv::Mat& weighted_bound, const cv::Mat& level
 // was not biased, the modelled fit is only noisier — measured: R on IMG_2601 (scale a = 0.71), B at r = 4.
 // The sign of the bias that the model corrects is known: the decoder's block-averaged chroma makes a sharp shot's
 // edge less extreme than it was, so with a convex φ the pointwise mixture φ(I) ⊗ K is too low and the fit makes φ
-// more convex, i.e. lower over the data (measured: pointwise B's best scale against the truth 0.57–0.87 on the
+// more convex, i.e. lower over the data (measured: pointwise B's best scale against the truth 0.57–0.95 on the
 // r = 1 pairs where the model helps). A modelled fit that correctly removes that bias therefore lies above the
 // pointwise one; one that lies below it moved against the bias, by the noise of its thinner data.
 struct ChromaModelChoice {

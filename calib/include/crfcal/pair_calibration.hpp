@@ -67,8 +67,9 @@ struct PairCalibrationOptions {
   // The sharp shot's JPEG chroma sampling (`calibrate --chroma-model auto` reads it from the file; default 1×1: the
   // pointwise model). Subsampled: R and B are fitted only where the sharp shot's lost chroma detail is small
   // (chroma_subsampling.hpp, issue 20); G, carried by luma, keeps today's model. The blurred shot's chroma needs
-  // nothing: its blur removed the detail the blocks lose. Measured (docs/RESULTS.md#chroma): demo pair B 0.133 →
-  // 0.024, but over the 27 semi-real pairs no better on average (B 0.0676 → 0.0677, R 0.0202 → 0.0290), hence opt-in.
+  // nothing: its blur removed the detail the blocks lose. Measured (docs/RESULTS.md#chroma-choice, with chroma_choice):
+  // demo pair B 0.133 → 0.024; 27 semi-real pairs at r = 1 R 0.0202 → 0.0143, B 0.0676 → 0.0253, but at r = 4
+  // B 0.0143 → 0.0168 and at 4:2:2 one scene worse, hence opt-in.
   ChromaSubsampling sharp_chroma;
   ChromaDetailOptions chroma_detail;
   // With sharp_chroma subsampled: R and B are fitted both ways and keep the chroma model only where its fit lies
