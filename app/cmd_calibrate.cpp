@@ -38,8 +38,8 @@ namespace {
 struct CalibrateArgs {
   std::string first, second, output;
   std::string channels = "rgb";
-  // auto: the sharp JPEG's chroma sampling picks the model (issue 20); off (default: measured no better on the
-  // semi-real bench, docs/RESULTS.md#chroma)
+  // auto: the sharp JPEG's chroma sampling picks the model, chosen per channel (issue 20); off (default: measured
+  // worse than the pointwise model at r = 4 and on one 4:2:2 scene, docs/RESULTS.md#chroma-choice)
   std::string chroma_model = "off";
   std::string model = "auto";
   double ratio = 0;  // 0: from EXIF
@@ -515,9 +515,10 @@ const CommandRegistration registration(
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
       command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--chroma-model", args->chroma_model,
-                         "auto: a sharp JPEG with subsampled chroma (4:2:0, 4:2:2) fits R and B only where its lost "
-                         "chroma detail is small (B better on the demo pair and every semi-real scene, R worse on one of three: "
-                         "docs/RESULTS.md#chroma-floor); "
+                         "auto: a sharp JPEG with subsampled chroma (4:2:0, 4:2:2) fits R and B also only where its "
+                         "lost chroma detail is small, and keeps that fit where it lies above the pointwise one (better "
+                         "R and B in every semi-real scene at r = 1, B worse at r = 4 and on one 4:2:2 scene: "
+                         "docs/RESULTS.md#chroma-choice); "
                          "off: the pointwise model everywhere")
           ->capture_default_str()
           ->check(CLI::IsMember({"auto", "off"}));

@@ -224,7 +224,8 @@ void chromaSummary(StudyTable& table, Progress& progress) {
             "2x2 blocks after the tone curve; the blurred shot's chroma is smooth (measured: only the sharp shot's "
             "4:2:0 matters)";
   s.extended = "R and B fitted only where the kernel-weighted bound of the lost chroma detail (from the stored "
-               "block averages) is <= 4 levels (" + std::to_string(excluded_b) + " B pixels excluded); G unchanged";
+               "block averages) is <= 4 levels (" + std::to_string(excluded_b) + " B pixels excluded), kept per channel "
+               "where that fit lies above the pointwise one (the sign of the bias it removes); G unchanged";
   s.gain = "phi RMSE vs truth (not used by the fit) R " + fmt(rmse[0]["R"], 4) + " -> " + fmt(rmse[1]["R"], 4) +
            ", B " + fmt(rmse[0]["B"], 4) + " -> " + fmt(rmse[1]["B"], 4) + ", G " + fmt(rmse[0]["G"], 4) + " -> " +
            fmt(rmse[1]["G"], 4);

@@ -1,4 +1,5 @@
 // Issue 20: JPEG chroma subsampling in the pair model (chroma_subsampling.hpp, CrfFitOptions::sharp_error_bound).
+#include <cmath>
 #include <fstream>
 
 #include <gtest/gtest.h>
@@ -61,13 +62,32 @@ TEST(ChromaExclusion, EmptiedLevelBinKeepsLeastAffectedPixels) {
   EXPECT_THROW(excludedByErrorBound(bound, level, candidates, 0.1, LevelFloor{16, 0.05, 1.5}), InvalidInput);
 }
 
+// The choice between the chroma model's fit and the pointwise one compares them by their best scale over the range
+// both cover: outside it the curves may differ arbitrarily; no common range or different samplings throw.
+TEST(ChromaChoice, RelativeScaleOverTheCommonRangeOnly) {
+  std::vector<double> pointwise(1024), modelled(1024);
+  for (int i = 0; i < 1024; ++i) {
+    pointwise[i] = std::pow(i / 1023.0, 2.2);
+    modelled[i] = i < 100 || i > 900 ? 1.0 : 1.2 * pointwise[i];  // 1.2× inside, anything outside
+  }
+  EXPECT_NEAR(relativeCurveScale(modelled, {100, 950}, pointwise, {50, 900}), 1.2, 1e-12);
+  EXPECT_GT(std::abs(relativeCurveScale(modelled, {0, 1023}, pointwise, {0, 1023}) - 1.2), 0.01);  // outside counted
+  EXPECT_NEAR(relativeCurveScale(pointwise, {0, 1023}, pointwise, {0, 1023}), 1.0, 1e-12);
+  EXPECT_THROW(relativeCurveScale(modelled, {600, 900}, pointwise, {100, 500}), InvalidInput);  // nothing in common
+  EXPECT_THROW(relativeCurveScale(modelled, {0, 0}, pointwise, {0, 0}), InvalidInput);          // φ(0) = 0 only
+  EXPECT_THROW(relativeCurveScale(std::vector<double>(512, 0.5), {0, 511}, pointwise, {0, 1023}), InvalidInput);
+  EXPECT_THROW((ChromaModelChoice{true, 0.0}.check()), InvalidInput);
+}
+
 std::vector<double> demoTruth() {
   std::ifstream in(test::samples() / "pairs" / "truth.json");
   return nlohmann::json::parse(in).at("inverse_crf").get<std::vector<double>>();
 }
 
-PairCalibrationResult calibrateDemo(const io::LoadedPair& pair, ChromaSubsampling sharp_chroma) {
+PairCalibrationResult calibrateDemo(const io::LoadedPair& pair, ChromaSubsampling sharp_chroma,
+                                    ChromaModelChoice choice = {}) {
   PairCalibrationOptions options;
+  options.chroma_choice = choice;
   options.fit.nominal_ratio = pair.exif_ratio->ratio();
   options.effects.enabled = false;
   options.sharp_chroma = sharp_chroma;
@@ -95,6 +115,18 @@ TEST(ChromaModel, SubsampledSharpShotBlueCurveCloserToTruth) {
   EXPECT_LT(b_modelled, 0.04);   // 0.024 measured; JPEG 4:4:4 of the same pair gives 0.023
   EXPECT_LT(g, 0.01);
   EXPECT_GT(modelled.fits.at("B").pixels.unmodelled, 0);
+  // The choice: both channels' modelled fits lie above their pointwise ones (measured R 1.01, B 1.55), so both keep
+  // the model; asked for more than B's scale, both fall back to exactly the pointwise fits.
+  EXPECT_TRUE(pointwise.chroma_model_scale.empty());
+  ASSERT_EQ(modelled.chroma_model_scale.size(), 2u);
+  EXPECT_GT(modelled.chroma_model_scale.at("B"), 1.3);
+  EXPECT_GT(modelled.chroma_model_scale.at("R"), 1.0);
+  const PairCalibrationResult refused =
+      calibrateDemo(pair, {pair.sharp.chroma_block_h, pair.sharp.chroma_block_v}, ChromaModelChoice{true, 5.0});
+  EXPECT_TRUE(refused.chroma_model_channels.empty());
+  for (const char* name : {"R", "G", "B"})
+    EXPECT_EQ(refused.fits.at(name).inverse_crf, pointwise.fits.at(name).inverse_crf) << name;
+  EXPECT_EQ(refused.chroma_model_scale.at("B"), modelled.chroma_model_scale.at("B"));
 }
 
 }  // namespace

@@ -112,6 +112,27 @@ cv::Mat excludedByErrorBound(const cv::Mat& weighted_bound, const cv::Mat& level
   return excluded;
 }
 
+void ChromaModelChoice::check() const {
+  if (!(min_relative_scale > 0 && min_relative_scale < 10))
+    throw InvalidInput("chroma model choice: min_relative_scale must be in (0, 10)");
+}
+
+double relativeCurveScale(const std::vector<double>& modelled, std::pair<int, int> covered_modelled,
+                          const std::vector<double>& pointwise, std::pair<int, int> covered_pointwise) {
+  if (modelled.empty() || modelled.size() != pointwise.size())
+    throw InvalidInput("relative curve scale: both curves need the same, non-zero number of samples");
+  const int last = static_cast<int>(modelled.size()) - 1;
+  const int lo = std::clamp(std::max(covered_modelled.first, covered_pointwise.first), 0, last);
+  const int hi = std::clamp(std::min(covered_modelled.second, covered_pointwise.second), 0, last);
+  double cross = 0, square = 0;
+  for (int i = lo; i <= hi; ++i) {
+    cross += modelled[i] * pointwise[i];
+    square += pointwise[i] * pointwise[i];
+  }
+  if (hi < lo || !(square > 0)) throw InvalidInput("relative curve scale: the curves cover no common non-zero range");
+  return cross / square;
+}
+
 void LevelFloor::check() const {
   if (bins < 1 || bins > 1024 || !(emptied_fraction >= 0 && emptied_fraction <= 1) ||
       !(refilled_fraction >= 0 && refilled_fraction <= 1))

@@ -27,6 +27,7 @@ void PairCalibrationOptions::check() const {
   verdict.check();
   ratio_evidence.check();
   chroma_detail.check();
+  chroma_choice.check();
   for (const ChromaSubsampling& c : {sharp_chroma, sharp_stored_chroma})
     if (c.h < 1 || c.v < 1 || c.h > 4 || c.v > 4) throw InvalidInput("chroma sampling factors must be 1..4");
 }

@@ -1,5 +1,6 @@
 // Stage "effects" of calibratePair: named effects tested on the fit's residuals (effects.hpp); a detected effect's
 // extended model supplies φ unless it moved an r the user fixed.
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -20,6 +21,10 @@ void diagnoseResidualEffects(PairCalibrationState& state) {
   ei.sharp = state.window_sharp;
   ei.blurred = state.window_blurred;
   ei.fits = result.fits;
+  // A channel that kept the chroma model is diagnosed by its pointwise fit: the effects' refits are pointwise, so
+  // against the modelled fit they would measure the chroma model as an "effect" (measured: G of a semi-real pair
+  // 0.0036 → 0.027 through such a decision, docs/RESULTS.md#chroma-choice).
+  for (const auto& [name, fit] : state.pointwise_fits) ei.fits[name] = fit;
   ei.kernel = state.kernel;
   ei.kernel_estimated = result.kernel_estimated;
   ei.nominal_ratio = options.fit.nominal_ratio;  // EXIF / --ratio (fit_options' may hold the combined r)
@@ -32,7 +37,10 @@ void diagnoseResidualEffects(PairCalibrationState& state) {
     result.effects = diagnoseEffects(ei, options.effects);
     if (!result.effects.fits.empty()) {
       result.base_fits = result.fits;
+      const auto& modelled = result.chroma_model_channels;
       for (const auto& [name, fit] : result.effects.fits) {
+        // The extended models are pointwise: a channel that kept the chroma model keeps its fit.
+        if (std::find(modelled.begin(), modelled.end(), name) != modelled.end()) continue;
         // A fixed r (--fix-ratio) is the user's constraint: an extended model that moved it is not adopted.
         if (!fit_options.fit_ratio &&
             std::abs(fit.ratio - fit_options.nominal_ratio) > 1e-9 * fit_options.nominal_ratio) {

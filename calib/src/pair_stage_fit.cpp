@@ -1,6 +1,7 @@
 // Stage "fit window" of calibratePair: the window of the frame handed to the φ fit (crf_fitter.hpp, Eq. 21–25),
 // both shots cut to it per channel, and the fit of one channel on it.
 #include <algorithm>
+#include <cmath>
 #include <exception>
 #include <map>
 #include <optional>
@@ -83,17 +84,53 @@ CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& na
   return fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
 }
 
+namespace {
+
+// The sample index of a level of the fit's level grid on the 1024 samples of φ.
+int sampleOfLevel(int level, int levels, std::size_t samples) {
+  return static_cast<int>(std::lround(static_cast<double>(level) * (samples - 1) / std::max(levels - 1, 1)));
+}
+
+// ChromaModelChoice: whether channel `name`'s modelled fit is kept against its pointwise fit; records the scale.
+bool keepsChromaModel(PairCalibrationState& state, const std::string& name, const CrfFitResult& modelled,
+                      const CrfFitResult& pointwise) {
+  const auto covered = [](const CrfFitResult& f) {
+    return std::make_pair(sampleOfLevel(f.covered_levels.first, f.levels, f.inverse_crf.size()),
+                          sampleOfLevel(f.covered_levels.second, f.levels, f.inverse_crf.size()));
+  };
+  double scale = 0;
+  try {
+    scale = relativeCurveScale(modelled.inverse_crf, covered(modelled), pointwise.inverse_crf, covered(pointwise));
+  } catch (const InvalidInput&) {
+    return false;  // no common range to compare on: the pointwise model, as for a channel the model cannot fit
+  }
+  state.result.chroma_model_scale[name] = scale;
+  return scale > state.options.chroma_choice.min_relative_scale;
+}
+
+}  // namespace
+
 std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, const std::vector<std::string>& names,
-                                                const cv::Mat& kernel, bool fallback_warnings) {
-  const int n = static_cast<int>(names.size());
-  std::vector<std::optional<CrfFitResult>> fits(n);
+                                                const cv::Mat& kernel, bool fallback_warnings,
+                                                bool choose_chroma_model) {
+  // The jobs: every channel as it is modelled, then (choose_chroma_model) the modelled ones once more pointwise.
+  std::vector<std::string> pointwise_names;
+  if (choose_chroma_model)
+    for (const auto& name : names)
+      if (state.window_sharp_error.count(name)) pointwise_names.push_back(name);
+  const int n = static_cast<int>(names.size()), jobs = n + static_cast<int>(pointwise_names.size());
+  std::vector<std::optional<CrfFitResult>> fits(jobs);
   state.report("fit", 0, n == 1 ? names[0] : std::to_string(n) + " channels");
-  const std::vector<std::exception_ptr> errors = runInParallel(n, [&](int i) {
-    CrfFitOptions fo = channelFitOptions(state, names[i]);
+  const std::vector<std::exception_ptr> errors = runInParallel(jobs, [&](int i) {
+    const std::string& name = i < n ? names[i] : pointwise_names[i - n];
+    CrfFitOptions fo = channelFitOptions(state, name);
+    if (i >= n) fo.sharp_error_bound = cv::Mat();
     fo.progress = nullptr;  // progress from the workers would interleave: the stage reports per batch
-    fits[i] = fitInverseCrf(state.window_sharp.at(names[i]), state.window_blurred.at(names[i]),
-                            cropKernel(kernel, 0.0), fo);  // cropped as fitChannel does
+    fits[i] = fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), cropKernel(kernel, 0.0),
+                            fo);  // cropped as fitChannel does
   });
+  for (int i = n; i < jobs; ++i)
+    if (errors[i]) std::rethrow_exception(errors[i]);  // the pointwise fit of a channel: as without the model
   std::map<std::string, CrfFitResult> out;
   for (int i = 0; i < n; ++i) {
     const std::string& name = names[i];
@@ -107,7 +144,18 @@ std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, con
         if (fallback_warnings)
           state.result.warnings.push_back(name + ": too few pixels where the sharp shot's subsampled chroma is flat (" +
                                           e.reason() + "); fitted with the pointwise model, less reliable than G");
-        fits[i] = fitChannel(state, name, kernel);
+        const auto p = std::find(pointwise_names.begin(), pointwise_names.end(), name);
+        fits[i] = p != pointwise_names.end() ? std::move(fits[n + (p - pointwise_names.begin())])
+                                             : std::optional<CrfFitResult>(fitChannel(state, name, kernel));
+      }
+    } else if (const auto p = std::find(pointwise_names.begin(), pointwise_names.end(), name);
+               p != pointwise_names.end()) {
+      std::optional<CrfFitResult>& pointwise = fits[n + (p - pointwise_names.begin())];
+      if (!keepsChromaModel(state, name, *fits[i], *pointwise)) {
+        state.window_sharp_error.erase(name);  // later refits (ratio evidence) use the pointwise model too
+        fits[i] = std::move(pointwise);
+      } else {
+        state.pointwise_fits[name] = std::move(*pointwise);
       }
     }
     out[name] = std::move(*fits[i]);

@@ -95,7 +95,7 @@ void fitKernelPhiRounds(PairCalibrationState& state) {
   for (const auto& name : result.channels)
     if (name != "G") others.push_back(name);
   if (!others.empty()) {
-    auto fits = fitChannels(state, others, state.kernel, true);
+    auto fits = fitChannels(state, others, state.kernel, true, options.chroma_choice.enabled);
     for (const auto& name : others) {
       if (state.window_sharp_error.count(name)) result.chroma_model_channels.push_back(name);
       result.fits[name] = std::move(fits.at(name));

@@ -78,6 +78,9 @@ struct PairCalibrationState {
 
   // fit window: both shots inside result.fit_window, per channel, in the images' depth (0 outside the overlap)
   std::map<std::string, cv::Mat> window_sharp, window_blurred, window_sharp_error;
+  // The pointwise fits of the channels that kept the chroma model (fitChannels' choice): the effect diagnostics see
+  // these, so that their decisions — and G — are those of the pointwise model.
+  std::map<std::string, CrfFitResult> pointwise_fits;
 
   // rounds
   CrfFitOptions fit_options;      // options.fit; fit_ratio cleared when the small-blur hold applies
@@ -136,8 +139,12 @@ CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& na
 // loop's at the same thread count). A channel fitted with the chroma model (a subsampled sharp
 // JPEG) that leaves too few pixels falls back to the pointwise model; `fallback_warnings` then gets a line (the
 // rounds stage reports it, the ratio stage does not repeat it). Any other failure is rethrown, in channel order.
+// choose_chroma_model (the rounds stage, with options.chroma_choice enabled): a modelled channel is also fitted
+// pointwise, in the same parallel batch, and keeps the model only if ChromaModelChoice says so; otherwise its bound
+// is dropped (later refits use the pointwise model too). The scale is recorded in result.chroma_model_scale.
 std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, const std::vector<std::string>& names,
-                                                const cv::Mat& kernel, bool fallback_warnings);
+                                                const cv::Mat& kernel, bool fallback_warnings,
+                                                bool choose_chroma_model = false);
 
 // ---- kernel↔φ rounds (pair_stage_rounds.cpp)
 void fitKernelPhiRounds(PairCalibrationState& state);

@@ -265,6 +265,8 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
   extra["input"]["chroma_model_channels"] = result.chroma_model_channels;
   for (const auto& name : result.chroma_model_channels)
     extra["input"]["chroma_excluded_pixels"][name] = result.fits.at(name).pixels.unmodelled;
+  // the choice between the chroma model's fit and the pointwise one: the former's best scale against the latter
+  for (const auto& [name, scale] : result.chroma_model_scale) extra["input"]["chroma_model_scale"][name] = scale;
   addExposureRatio(result, context, extra);
   extra["kernel"] = kernelJson(result);
   extra["registration"] = registrationJson(result.registration);

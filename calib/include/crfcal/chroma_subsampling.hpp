@@ -11,6 +11,8 @@
 // CrfFitOptions::sharp_error_bound). Fitting there with the true per-pixel error (an oracle from a 4:4:4 twin)
 // brings R and B to the 4:4:4 accuracy; chromaErrorBound estimates it from the stored chroma.
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -59,5 +61,29 @@ struct LevelFloor {
 // pixel could be used. Returns CV_8U, 255 at excluded candidates. Wrong types or sizes → InvalidInput.
 cv::Mat excludedByErrorBound(const cv::Mat& weighted_bound, const cv::Mat& level, const cv::Mat& candidates,
                              double max_error, const LevelFloor& floor = {});
+
+// Which model a subsampled channel keeps (issue 20, third round): the chroma model's fit, or the pointwise one.
+// Why a rule: excluding the chroma edges also removes much of the data that pins φ's scale (φ(B) = r·φ(I) ⊗ K is
+// homogeneous in φ; φ(1) = 1 fixes the scale through the extrapolation above the data), so where the pointwise model
+// was not biased, the modelled fit is only noisier — measured: R on IMG_2601 (scale a = 0.71), B at r = 4.
+// The sign of the bias that the model corrects is known: the decoder's block-averaged chroma makes a sharp shot's
+// edge less extreme than it was, so with a convex φ the pointwise mixture φ(I) ⊗ K is too low and the fit makes φ
+// more convex, i.e. lower over the data (measured: pointwise B's best scale against the truth 0.57–0.95 on the
+// r = 1 pairs where the model helps). A modelled fit that correctly removes that bias therefore lies above the
+// pointwise one; one that lies below it moved against the bias, by the noise of its thinner data.
+struct ChromaModelChoice {
+  bool enabled = true;       // false: a modelled channel always keeps the chroma model's fit (the second round)
+  // The modelled fit is kept only if its best scale against the pointwise fit over the range both cover is above
+  // this: 1, the sign rule above (no margin tuned on the benchmarks).
+  double min_relative_scale = 1.0;
+  void check() const;        // throws InvalidInput
+};
+
+// The best scale a of `modelled` against `pointwise` (least squares: modelled ≈ a·pointwise) over the samples both
+// cover. Both: φ sampled uniformly on [0, 1] (the fitter's 1024 samples, the same count); covered_*: the first and
+// last covered sample of each (inclusive). No common sample, different or empty samplings, or pointwise zero there
+// → InvalidInput.
+double relativeCurveScale(const std::vector<double>& modelled, std::pair<int, int> covered_modelled,
+                          const std::vector<double>& pointwise, std::pair<int, int> covered_pointwise);
 
 }  // namespace crfcal

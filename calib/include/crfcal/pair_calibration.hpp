@@ -67,10 +67,14 @@ struct PairCalibrationOptions {
   // The sharp shot's JPEG chroma sampling (`calibrate --chroma-model auto` reads it from the file; default 1×1: the
   // pointwise model). Subsampled: R and B are fitted only where the sharp shot's lost chroma detail is small
   // (chroma_subsampling.hpp, issue 20); G, carried by luma, keeps today's model. The blurred shot's chroma needs
-  // nothing: its blur removed the detail the blocks lose. Measured (docs/RESULTS.md#chroma): demo pair B 0.133 →
-  // 0.024, but over the 27 semi-real pairs no better on average (B 0.0676 → 0.0677, R 0.0202 → 0.0290), hence opt-in.
+  // nothing: its blur removed the detail the blocks lose. Measured (docs/RESULTS.md#chroma-choice, with chroma_choice):
+  // demo pair B 0.133 → 0.024; 27 semi-real pairs at r = 1 R 0.0202 → 0.0143, B 0.0676 → 0.0253, but at r = 4
+  // B 0.0143 → 0.0168 and at 4:2:2 one scene worse, hence opt-in.
   ChromaSubsampling sharp_chroma;
   ChromaDetailOptions chroma_detail;
+  // With sharp_chroma subsampled: R and B are fitted both ways and keep the chroma model only where its fit lies
+  // above the pointwise one (chroma_subsampling.hpp ChromaModelChoice; measured: docs/RESULTS.md#chroma-choice).
+  ChromaModelChoice chroma_choice;
   // The sharp shot's chroma sampling as its file stores it, whatever the model (for the verdict: R and B fitted by
   // the pointwise model from a subsampled sharp shot are "weak"). 1×1: full resolution or not a JPEG.
   ChromaSubsampling sharp_stored_chroma;
@@ -119,6 +123,9 @@ struct PairCalibrationResult {
   std::vector<std::string> channels;     // "R","G","B" or "G"
   // Channels fitted only where the sharp shot's subsampled chroma is flat (options.sharp_chroma; issue 20)
   std::vector<std::string> chroma_model_channels;
+  // With options.chroma_choice: per subsampled channel the best scale of the chroma model's fit against the pointwise
+  // one over their common range (kept the chroma model iff above chroma_choice.min_relative_scale). Empty: no choice.
+  std::map<std::string, double> chroma_model_scale;
   std::map<std::string, CrfFitResult> fits;
   std::vector<CalibrationRound> rounds;
   double blur_radius = 0;                // RMS radius of the final kernel about its centroid, pixels
