@@ -32,6 +32,8 @@ void BracketSamplingOptions::check() const {
   if (!(low >= 0 && low < high && high <= 1))
     throw InvalidInput("bracket sampling: need 0 ≤ low < high ≤ 1", ErrorSubject::options);
   if (margin < 0) throw InvalidInput("bracket sampling: margin must be ≥ 0", ErrorSubject::options);
+  if (!(max_saturation > 0 && max_saturation <= 1))
+    throw InvalidInput("bracket sampling: max_saturation must be in (0, 1]", ErrorSubject::options);
 }
 
 void BracketCalibrationOptions::check() const {
@@ -262,7 +264,24 @@ std::vector<double> exposuresFromImages(const std::vector<cv::Mat>& greys, int r
 struct Samples {
   std::vector<cv::Point> positions;
   std::vector<std::vector<cv::Vec3f>> values;  // [point][frame]
+  std::vector<float> saturation;               // [point]: pointSaturation
 };
+
+// A point's colour saturation, (max − min)/max over its planes, in the frame where its brightest plane is highest
+// while below `high` (the least noisy unclipped view of its colour; a dark view's noise would make any colour look
+// vivid). A camera's JPEG pipeline maps saturated colours further (gamut mapping and saturation after the tone
+// curve; Kim et al., "A new in-camera imaging model for color computer vision", PAMI 2012), so z_pj = f(E_p t_j)
+// with one curve per channel holds for near-neutral points, not for vivid ones.
+float pointSaturation(const std::vector<cv::Vec3f>& frames, double high) {
+  float best = -1, saturation = 0;
+  for (const cv::Vec3f& v : frames) {
+    const float brightest = std::max({v[0], v[1], v[2]}), darkest = std::min({v[0], v[1], v[2]});
+    if (brightest >= high || brightest <= best) continue;
+    best = brightest;
+    saturation = brightest > 0 ? (brightest - darkest) / brightest : 0.0f;
+  }
+  return saturation;
+}
 
 Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions& options) {
   const cv::Size size = aligned.images.front().size();
@@ -346,6 +365,7 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
       }
     }
     samples.positions.push_back(p);
+    samples.saturation.push_back(pointSaturation(v, options.high));
     samples.values.push_back(std::move(v));
   }
   return samples;
@@ -364,6 +384,7 @@ std::vector<ScaledObservation> channelObservations(const Samples& samples, int p
   std::vector<ScaledObservation> observations;
   points = 0;
   for (std::size_t p = 0; p < samples.values.size(); ++p) {
+    if (samples.saturation[p] > options.max_saturation) continue;  // vivid: rendered beyond the channel's curve
     std::vector<ScaledObservation> own;
     for (std::size_t j = 0; j < exposure.size(); ++j) {
       const double z = samples.values[p][j][plane];
@@ -396,6 +417,7 @@ void refineExposures(const Samples& samples, const std::vector<BracketChannelRes
       const ScaledFitResult& fit = channels[ci].fit;
       int group = 0;
       for (std::size_t p = 0; p < samples.values.size(); ++p) {
+        if (samples.saturation[p] > options.max_saturation) continue;
         int usable = 0;
         for (std::size_t k = 0; k < exposure.size(); ++k) {
           const double z = samples.values[p][k][planes[ci]];

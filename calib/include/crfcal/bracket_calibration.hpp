@@ -47,6 +47,11 @@ struct BracketSamplingOptions {
   int candidates = 60000;        // candidate positions on a regular grid of the reference frame
   double low = 0.02;             // a channel value below this (unit scale) is the noise floor: not data
   double high = 0.97;            // … at or above this: clipped, not data
+  // A scene point is data only while its colour is at most this saturated, (max − min)/max over R, G, B in its
+  // brightest unclipped frame: cameras render vivid colours through gamut mapping / saturation that no per-channel
+  // curve describes. 1: every colour. Chosen on the "choose" cameras of `crfcal bench references`
+  // (docs/RESULTS.md#bracket).
+  double max_saturation = 0.3;
   int margin = 8;                // pixels kept away from the frame and the registered overlap's border
   std::uint64_t seed = 1;        // deterministic draw
   void check() const;            // throws InvalidInput
