@@ -15,10 +15,11 @@
 // curve, estimateExposureRatio) and the warning says so: the curve's overall exponent then rests on that estimate.
 //
 // Frames. Handheld frames are registered onto the middle exposure (registration.hpp; the histogram equalisation
-// there removes the exposure difference); a frame that does not register is refused (not the same scene).
+// there removes the exposure difference), translation first (phase correlation + ECC; AKAZE features only for a frame
+// that path does not settle); a frame that does not register is refused (not the same scene).
 // Samples. Scene points on flat areas (the largest local standard deviation over the frames is among the lowest of
 // their brightness class), spread over the brightness range; a point's value is the local mean of each channel;
-// values near 0 (noise floor) or 1 (clipping) are not data.
+// values near 0 (noise floor) or 1 (clipping) are not data, nor are points of a vivid colour (max_saturation).
 #include <cstdint>
 #include <functional>
 #include <string>

@@ -5,6 +5,8 @@
 // 1. Coarse: a global motion on a downscaled copy: AKAZE features + ratio-test matching + RANSAC, refined by ECC
 //    (cv::findTransformECC, both images Gaussian-smoothed so that the blur difference matters less). Without
 //    enough feature matches (e.g. strong blur), phase correlation gives the translation that seeds ECC.
+//    With translation_first (brackets): phase correlation + ECC is tried before the features, which are detected
+//    only when that alignment's correlation stays below translation_first_correlation.
 // 2. Kernel-aware refinement (refineRegistration): once a kernel K is known, ECC between I ⊗ K and B — now
 //    equally blurred, so the blur no longer biases the alignment (an asymmetric handheld kernel drags a plain
 //    sharp-vs-blurred ECC towards its centroid and, with a homography's 8 degrees of freedom, into spurious
