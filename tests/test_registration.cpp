@@ -88,6 +88,43 @@ TEST(Registration, WarpToSharpInvertsTheMotion) {
   EXPECT_GT(cv::countNonZero(inside), 0.9 * sharp.total());
 }
 
+// A bracket's frames (same sharpness, another exposure, a steady hand): phase correlation + ECC settles them without
+// the AKAZE features, at the warp the features-first path finds.
+TEST(Registration, TranslationFirstGivesTheFeaturePathsWarp) {
+  const cv::Mat reference = mosaic();
+  const cv::Mat truth = handheld(reference.size(), 0.6, {7.3, -4.6});
+  cv::Mat frame = warpToBlurred(reference, truth.inv(), reference.size());  // frame pixel → reference pixel: truth
+  cv::pow(frame, 0.6, frame);                                             // another exposure / tone
+  RegistrationOptions fast;
+  fast.translation_first = true;
+  const RegistrationResult full = registerPair(frame, reference);
+  const RegistrationResult first = registerPair(frame, reference, fast);
+  EXPECT_EQ(first.method.rfind("phase-first", 0), 0u) << first.summary();
+  EXPECT_EQ(full.method.rfind("features", 0), 0u) << full.summary();
+  EXPECT_LT(cornerError(first.homography, full.homography, reference.size()), 0.1) << first.summary();
+  EXPECT_LT(cornerError(first.homography, truth, reference.size()), 0.5) << first.summary();
+  // The same through a target prepared without features (as calibrateBracket does).
+  const RegistrationTarget target = prepareRegistrationTarget(reference, reference.size(), fast, false);
+  EXPECT_FALSE(target.with_features);
+  const std::optional<RegistrationResult> alone = registerByTranslation(frame, target, fast);
+  ASSERT_TRUE(alone.has_value());
+  EXPECT_EQ(cv::norm(alone->homography, first.homography, cv::NORM_INF), 0.0);
+}
+
+// A turn beyond ECC's reach from a translation: the translation-first step declines and the features settle it.
+TEST(Registration, TranslationFirstLeavesALargeTurnToTheFeatures) {
+  const cv::Mat reference = mosaic();
+  const cv::Mat truth = handheld(reference.size(), 30, {0, 0});
+  const cv::Mat frame = warpToBlurred(reference, truth.inv(), reference.size());
+  RegistrationOptions fast;
+  fast.translation_first = true;
+  const RegistrationTarget target = prepareRegistrationTarget(reference, reference.size(), fast, false);
+  EXPECT_FALSE(registerByTranslation(frame, target, fast).has_value());
+  const RegistrationResult r = registerPair(frame, target, fast);  // the target's features detected for this call
+  EXPECT_EQ(r.method.rfind("features", 0), 0u) << r.summary();
+  EXPECT_LT(cornerError(r.homography, truth, reference.size()), 0.5) << r.summary();
+}
+
 TEST(Registration, DifferentScenesDoNotOverlap) {
   const cv::Mat a = test::levinImage(1), b = test::levinImage(3);
   try {

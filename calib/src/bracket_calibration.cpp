@@ -8,6 +8,7 @@
 #include <numeric>
 #include <random>
 #include <sstream>
+#include <utility>
 
 #include <opencv2/imgproc.hpp>
 
@@ -31,6 +32,8 @@ void BracketSamplingOptions::check() const {
   if (!(low >= 0 && low < high && high <= 1))
     throw InvalidInput("bracket sampling: need 0 ≤ low < high ≤ 1", ErrorSubject::options);
   if (margin < 0) throw InvalidInput("bracket sampling: margin must be ≥ 0", ErrorSubject::options);
+  if (!(max_saturation > 0 && max_saturation <= 1))
+    throw InvalidInput("bracket sampling: max_saturation must be in (0, 1]", ErrorSubject::options);
 }
 
 void BracketCalibrationOptions::check() const {
@@ -100,16 +103,33 @@ AlignedBracket alignFrames(const std::vector<BracketFrame>& frames, int referenc
   // failing frame in order, as a serial loop would).
   // The reference's side of the registration (normalised copy, AKAZE features) is prepared once for the frames of
   // its size (a bracket's frames all are): the same result as registerPair(frame, reference) with a third of its
-  // feature detections gone for 4 frames (docs/RESULTS.md#bracket: features were 48 % of a call).
+  // feature detections gone for 4 frames (docs/RESULTS.md#bracket: features were 48 % of a call). With
+  // translation_first (the default here) the frames are first aligned by phase correlation + ECC, and the features,
+  // the reference's included, are detected only if a frame is not settled that way (handheld with a larger turn).
   const int n = static_cast<int>(frames.size());
+  const RegistrationOptions& registration = options.registration;
   RegistrationTarget target;
-  if (options.register_frames) target = prepareRegistrationTarget(ref, ref.size(), options.registration);
+  if (options.register_frames)
+    target = prepareRegistrationTarget(ref, ref.size(), registration, !registration.translation_first);
+  const auto same_size = [&](int j) { return frames[static_cast<size_t>(j)].image.size() == ref.size(); };
+  std::vector<char> settled(static_cast<size_t>(n), 0);  // char, not bool: written by the jobs concurrently
+  settled[static_cast<size_t>(reference)] = 1;
+  if (options.register_frames && registration.translation_first)
+    detail::runInParallel(n, [&](int j) {
+      if (j == reference || !same_size(j)) return;
+      if (auto fast = registerByTranslation(frames[static_cast<size_t>(j)].image, target, registration)) {
+        results[static_cast<size_t>(j)].registration = *fast;
+        settled[static_cast<size_t>(j)] = 1;
+      }
+    });
+  RegistrationOptions full = registration;
+  full.translation_first = false;  // tried above
+  if (options.register_frames && std::count(settled.begin(), settled.end(), 0) > 0) addTargetFeatures(target, full);
   const std::vector<std::exception_ptr> errors = detail::runInParallel(options.register_frames ? n : 0, [&](int j) {
-    if (j == reference) return;
     const size_t k = static_cast<size_t>(j);
-    results[k].registration = frames[k].image.size() == ref.size()
-                                  ? registerPair(frames[k].image, target, options.registration)
-                                  : registerPair(frames[k].image, ref, options.registration);
+    if (j == reference || settled[k]) return;
+    results[k].registration = same_size(j) ? registerPair(frames[k].image, target, full)
+                                           : registerPair(frames[k].image, ref, registration);
   });
   for (int j = 0; j < n; ++j) {
     const BracketFrame& frame = frames[static_cast<size_t>(j)];
@@ -141,12 +161,30 @@ cv::Mat greyOf(const cv::Mat& unit_image) {
   return grey;
 }
 
+// Ranks of v, ties given their mean rank (Spearman's definition: an 8-bit frame has many equal values, whose arbitrary
+// order would otherwise add noise to the correlation).
+std::vector<double> tiedRanks(const std::vector<float>& v) {
+  std::vector<std::pair<float, std::uint32_t>> sorted(v.size());
+  for (std::size_t k = 0; k < v.size(); ++k) sorted[k] = {v[k], std::uint32_t(k)};
+  std::sort(sorted.begin(), sorted.end());
+  std::vector<double> rank(v.size());
+  for (std::size_t first = 0; first < sorted.size();) {
+    std::size_t last = first;
+    while (last + 1 < sorted.size() && sorted[last + 1].first == sorted[first].first) ++last;
+    const double mean_rank = 0.5 * double(first + last);
+    for (std::size_t k = first; k <= last; ++k) rank[sorted[k].second] = mean_rank;
+    first = last + 1;
+  }
+  return rank;
+}
+
 // Spearman rank correlation of two aligned grey frames over the pixels where both are well exposed and `valid`
-// (a regular subsample): the frames of one scene are related by a monotone map (φ and the exposure ratio), so
-// their ranks agree (≈ 1 up to noise); another scene gives ≈ 0. NaN with fewer than 200 such pixels.
+// (a regular subsample of at most ~40,000 pixels: the verdict needs ρ to ±0.01, not every pixel, and the sort was
+// 9 % of a call): the frames of one scene are related by a monotone map (φ and the exposure ratio), so their ranks
+// agree (≈ 1 up to noise); another scene gives ≈ 0. NaN with fewer than 200 such pixels.
 double rankCorrelation(const cv::Mat& a, const cv::Mat& b, const cv::Mat& valid, double low, double high) {
   std::vector<float> va, vb;
-  const int step = std::max(1, int(std::sqrt(double(a.total()) / 40000.0)));
+  const int step = std::max(1, int(std::ceil(std::sqrt(double(a.total()) / 40000.0))));
   for (int y = 0; y < a.rows; y += step)
     for (int x = 0; x < a.cols; x += step) {
       const float p = a.at<float>(y, x), q = b.at<float>(y, x);
@@ -155,21 +193,16 @@ double rankCorrelation(const cv::Mat& a, const cv::Mat& b, const cv::Mat& valid,
       vb.push_back(q);
     }
   if (va.size() < 200) return std::numeric_limits<double>::quiet_NaN();
-  auto ranks = [](const std::vector<float>& v) {
-    std::vector<std::size_t> order(v.size());
-    std::iota(order.begin(), order.end(), 0);
-    std::sort(order.begin(), order.end(), [&](auto i, auto j) { return v[i] < v[j]; });
-    std::vector<double> r(v.size());
-    for (std::size_t k = 0; k < order.size(); ++k) r[order[k]] = double(k);
-    return r;
-  };
-  const std::vector<double> ra = ranks(va), rb = ranks(vb);
-  const double mean = (double(ra.size()) - 1) / 2;
+  const std::vector<double> ra = tiedRanks(va), rb = tiedRanks(vb);
+  double ma = 0, mb = 0;
+  for (std::size_t k = 0; k < ra.size(); ++k) ma += ra[k], mb += rb[k];
+  ma /= double(ra.size());
+  mb /= double(rb.size());
   double sab = 0, saa = 0, sbb = 0;
   for (std::size_t k = 0; k < ra.size(); ++k) {
-    sab += (ra[k] - mean) * (rb[k] - mean);
-    saa += (ra[k] - mean) * (ra[k] - mean);
-    sbb += (rb[k] - mean) * (rb[k] - mean);
+    sab += (ra[k] - ma) * (rb[k] - mb);
+    saa += (ra[k] - ma) * (ra[k] - ma);
+    sbb += (rb[k] - mb) * (rb[k] - mb);
   }
   return sab / std::sqrt(saa * sbb);
 }
@@ -231,7 +264,24 @@ std::vector<double> exposuresFromImages(const std::vector<cv::Mat>& greys, int r
 struct Samples {
   std::vector<cv::Point> positions;
   std::vector<std::vector<cv::Vec3f>> values;  // [point][frame]
+  std::vector<float> saturation;               // [point]: pointSaturation
 };
+
+// A point's colour saturation, (max − min)/max over its planes, in the frame where its brightest plane is highest
+// while below `high` (the least noisy unclipped view of its colour; a dark view's noise would make any colour look
+// vivid). A camera's JPEG pipeline maps saturated colours further (gamut mapping and saturation after the tone
+// curve; Kim et al., "A new in-camera imaging model for color computer vision", PAMI 2012), so z_pj = f(E_p t_j)
+// with one curve per channel holds for near-neutral points, not for vivid ones.
+float pointSaturation(const std::vector<cv::Vec3f>& frames, double high) {
+  float best = -1, saturation = 0;
+  for (const cv::Vec3f& v : frames) {
+    const float brightest = std::max({v[0], v[1], v[2]}), darkest = std::min({v[0], v[1], v[2]});
+    if (brightest >= high || brightest <= best) continue;
+    best = brightest;
+    saturation = brightest > 0 ? (brightest - darkest) / brightest : 0.0f;
+  }
+  return saturation;
+}
 
 Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions& options) {
   const cv::Size size = aligned.images.front().size();
@@ -315,6 +365,7 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
       }
     }
     samples.positions.push_back(p);
+    samples.saturation.push_back(pointSaturation(v, options.high));
     samples.values.push_back(std::move(v));
   }
   return samples;
@@ -333,6 +384,7 @@ std::vector<ScaledObservation> channelObservations(const Samples& samples, int p
   std::vector<ScaledObservation> observations;
   points = 0;
   for (std::size_t p = 0; p < samples.values.size(); ++p) {
+    if (samples.saturation[p] > options.max_saturation) continue;  // vivid: rendered beyond the channel's curve
     std::vector<ScaledObservation> own;
     for (std::size_t j = 0; j < exposure.size(); ++j) {
       const double z = samples.values[p][j][plane];
@@ -365,6 +417,7 @@ void refineExposures(const Samples& samples, const std::vector<BracketChannelRes
       const ScaledFitResult& fit = channels[ci].fit;
       int group = 0;
       for (std::size_t p = 0; p < samples.values.size(); ++p) {
+        if (samples.saturation[p] > options.max_saturation) continue;
         int usable = 0;
         for (std::size_t k = 0; k < exposure.size(); ++k) {
           const double z = samples.values[p][k][planes[ci]];

@@ -114,6 +114,8 @@ void RegistrationOptions::check() const {
   if (ecc_iterations < 1 || !(ecc_epsilon > 0)) throw InvalidInput("registration: bad ECC criteria");
   if (ecc_smoothing < 1 || ecc_smoothing % 2 == 0) throw InvalidInput("registration: ecc_smoothing must be odd");
   if (!(min_overlap > 0 && min_overlap <= 1)) throw InvalidInput("registration: min_overlap must be in (0, 1]");
+  if (!(translation_first_correlation > 0 && translation_first_correlation <= 1))
+    throw InvalidInput("registration: translation_first_correlation must be in (0, 1]");
 }
 
 cv::Point2d RegistrationResult::shift() const {
@@ -252,6 +254,36 @@ cv::Mat phaseHomography(const cv::Mat& a, const cv::Mat& b) {
   return H;
 }
 
+// The translation-first path's start: phase correlation on copies at most 256 px on their longer side, cropped to a
+// size OpenCV's DFT handles fast (on 390×260 frames the full-size CV_64F phaseCorrelate took 25 ms, more than ECC;
+// at 192×128 CV_32F 0.6 ms). ECC only needs a start within its capture range, a few working pixels; this one is
+// within a pixel or two of the downscale factor.
+cv::Mat phaseStart(const cv::Mat& a, const cv::Mat& b) {
+  constexpr int kLongest = 256;
+  const cv::Size common(std::min(a.cols, b.cols), std::min(a.rows, b.rows));
+  const double f = std::min(1.0, double(kLongest) / std::max(common.width, common.height));
+  cv::Mat sa = a(cv::Rect(0, 0, common.width, common.height)), sb = b(cv::Rect(0, 0, common.width, common.height));
+  if (f < 1) {
+    cv::resize(sa, sa, cv::Size(), f, f, cv::INTER_AREA);
+    cv::resize(sb, sb, cv::Size(), f, f, cv::INTER_AREA);
+  }
+  const auto fast_length = [](int n) {  // the largest n' ≤ n that cv::dft handles fast
+    while (n > 1 && cv::getOptimalDFTSize(n) != n) --n;
+    return n;
+  };
+  const cv::Rect crop(0, 0, fast_length(std::min(sa.cols, sb.cols)), fast_length(std::min(sa.rows, sb.rows)));
+  cv::Mat fa, fb, window;
+  sa(crop).convertTo(fa, CV_32F);
+  sb(crop).convertTo(fb, CV_32F);
+  cv::createHanningWindow(window, crop.size(), CV_32F);
+  const cv::Point2d t = cv::phaseCorrelate(fa, fb, window);
+  cv::Mat H = cv::Mat::eye(3, 3, CV_64F);
+  // The downscaled copies' pixel centres: x_full = (x_small + 0.5) / f − 0.5, so a shift scales by 1/f.
+  H.at<double>(0, 2) = t.x / f;
+  H.at<double>(1, 2) = t.y / f;
+  return H;
+}
+
 // Step 3 of registerPair: ECC refinement of H (template = blurred, input = sharp; the warp maps blurred → sharp
 // coordinates). Replaces H and marks `result` only when ECC converges to a sane homography.
 void refineByEcc(const cv::Mat& fa, const cv::Mat& fb, int motion, const RegistrationOptions& options, cv::Mat& H,
@@ -302,7 +334,7 @@ double workingScale(cv::Size sharp, cv::Size blurred, const RegistrationOptions&
 }  // namespace
 
 RegistrationTarget prepareRegistrationTarget(const cv::Mat& blurred, cv::Size sharp_size,
-                                             const RegistrationOptions& options) {
+                                             const RegistrationOptions& options, bool features) {
   options.check();
   if (blurred.empty()) throw InvalidInput("registration: empty image");
   RegistrationTarget target;
@@ -311,46 +343,105 @@ RegistrationTarget prepareRegistrationTarget(const cv::Mat& blurred, cv::Size sh
   const double scale = target.scale;
   target.normalised = photometricNormalise(blurred);
   if (scale < 1) cv::resize(target.normalised, target.normalised, cv::Size(), scale, scale, cv::INTER_AREA);
-  detectFeatures(target.normalised, options, target.keypoints, target.descriptors);
+  if (features) addTargetFeatures(target, options);
   return target;
+}
+
+void addTargetFeatures(RegistrationTarget& target, const RegistrationOptions& options) {
+  if (target.with_features) return;
+  detectFeatures(target.normalised, options, target.keypoints, target.descriptors);
+  target.with_features = true;
 }
 
 RegistrationResult registerPair(const cv::Mat& sharp, const cv::Mat& blurred, const RegistrationOptions& options) {
   options.check();
   if (sharp.empty() || blurred.empty()) throw InvalidInput("registration: empty image");
-  return registerPair(sharp, prepareRegistrationTarget(blurred, sharp.size(), options), options);
+  // Translation first: the blurred side's features are detected only when that path does not settle it.
+  return registerPair(sharp, prepareRegistrationTarget(blurred, sharp.size(), options, !options.translation_first),
+                      options);
 }
 
-RegistrationResult registerPair(const cv::Mat& sharp, const RegistrationTarget& target,
-                                const RegistrationOptions& options) {
+namespace {
+
+// Both sides of a registration at the working scale: the sharp frame's normalised copy and both as float.
+struct WorkingCopies {
+  double scale = 1;
+  cv::Mat a;       // sharp, 8-bit normalised, at `scale`
+  cv::Mat fa, fb;  // sharp and target, CV_32F in [0, 1]
+};
+
+WorkingCopies workingCopies(const cv::Mat& sharp, const RegistrationTarget& target, const RegistrationOptions& options) {
   options.check();
   if (sharp.empty() || target.normalised.empty()) throw InvalidInput("registration: empty image");
-  RegistrationResult result;
-  const double s = workingScale(sharp.size(), target.size, options);
-  if (s != target.scale)
+  WorkingCopies w;
+  w.scale = workingScale(sharp.size(), target.size, options);
+  if (w.scale != target.scale)
     throw InvalidInput("registration: the target was prepared for images of another size (working scale " +
-                       std::to_string(target.scale) + ", this image needs " + std::to_string(s) + ")");
-  result.scale = s;
-  cv::Mat a = photometricNormalise(sharp);
-  const cv::Mat& b = target.normalised;
-  if (s < 1) cv::resize(a, a, cv::Size(), s, s, cv::INTER_AREA);
-  const int motion = eccMotion(options.motion);
+                       std::to_string(target.scale) + ", this image needs " + std::to_string(w.scale) + ")");
+  w.a = photometricNormalise(sharp);
+  if (w.scale < 1) cv::resize(w.a, w.a, cv::Size(), w.scale, w.scale, cv::INTER_AREA);
+  w.a.convertTo(w.fa, CV_32F, 1.0 / 255);
+  target.normalised.convertTo(w.fb, CV_32F, 1.0 / 255);
+  return w;
+}
 
-  cv::Mat H = featureHomography(a, target, options, result);  // working scale, sharp → blurred
-  if (H.empty()) {
-    H = phaseHomography(a, b);
-    result.method = "phase";
-  }
-  cv::Mat fa, fb;
-  a.convertTo(fa, CV_32F, 1.0 / 255);
-  b.convertTo(fb, CV_32F, 1.0 / 255);
-  if (options.refine_ecc || result.method == "phase") refineByEcc(fa, fb, motion, options, H, result);
-  if (!result.ecc_refined) result.ecc_correlation = alignmentCorrelation(fa, fb, H, options);
+// The working-scale alignment H (sharp → target) as the full-resolution result, and its overlap.
+void completeResult(const cv::Mat& H, double s, cv::Size sharp_size, const RegistrationTarget& target,
+                    const RegistrationOptions& options, RegistrationResult& result) {
+  result.scale = s;
   result.method += std::string(" (") + toString(options.motion) + ")";
   result.homography = scaleMatrix(1.0 / s) * H * scaleMatrix(s);
-  result.overlap_fraction = coverage(sharp.size(), result.homography, target.size);
-  char detail[200];
-  if (result.overlap_fraction < options.min_overlap || result.ecc_correlation < options.min_correlation) {
+  result.overlap_fraction = coverage(sharp_size, result.homography, target.size);
+}
+
+bool overlaps(const RegistrationResult& result, const RegistrationOptions& options) {
+  return result.overlap_fraction >= options.min_overlap && result.ecc_correlation >= options.min_correlation;
+}
+
+// registerByTranslation on prepared working copies.
+std::optional<RegistrationResult> translationFirst(const WorkingCopies& w, cv::Size sharp_size,
+                                                   const RegistrationTarget& target,
+                                                   const RegistrationOptions& options) {
+  RegistrationResult result;
+  cv::Mat H = phaseStart(w.a, target.normalised);
+  result.method = "phase-first";
+  refineByEcc(w.fa, w.fb, eccMotion(options.motion), options, H, result);
+  if (!result.ecc_refined || !(result.ecc_correlation >= options.translation_first_correlation)) return std::nullopt;
+  completeResult(H, w.scale, sharp_size, target, options, result);
+  if (!overlaps(result, options)) return std::nullopt;
+  return result;
+}
+
+}  // namespace
+
+std::optional<RegistrationResult> registerByTranslation(const cv::Mat& sharp, const RegistrationTarget& target,
+                                                        const RegistrationOptions& options) {
+  return translationFirst(workingCopies(sharp, target, options), sharp.size(), target, options);
+}
+
+RegistrationResult registerPair(const cv::Mat& sharp, const RegistrationTarget& prepared,
+                                const RegistrationOptions& options) {
+  const WorkingCopies w = workingCopies(sharp, prepared, options);
+  if (options.translation_first)
+    if (auto fast = translationFirst(w, sharp.size(), prepared, options)) return *fast;
+  RegistrationTarget with_features;
+  if (!prepared.with_features) {  // a target prepared for translation first, which did not settle this frame
+    with_features = prepared;
+    addTargetFeatures(with_features, options);
+  }
+  const RegistrationTarget& target = prepared.with_features ? prepared : with_features;
+  RegistrationResult result;
+  const cv::Mat& b = target.normalised;
+  cv::Mat H = featureHomography(w.a, target, options, result);  // working scale, sharp → blurred
+  if (H.empty()) {
+    H = phaseHomography(w.a, b);
+    result.method = "phase";
+  }
+  if (options.refine_ecc || result.method == "phase") refineByEcc(w.fa, w.fb, eccMotion(options.motion), options, H, result);
+  if (!result.ecc_refined) result.ecc_correlation = alignmentCorrelation(w.fa, w.fb, H, options);
+  completeResult(H, w.scale, sharp.size(), target, options, result);
+  if (!overlaps(result, options)) {
+    char detail[200];
     std::snprintf(detail, sizeof detail,
                   "the pair does not overlap (best alignment: %.0f%% overlap, correlation %.2f, %d feature inliers)",
                   100.0 * result.overlap_fraction, result.ecc_correlation, result.inliers);

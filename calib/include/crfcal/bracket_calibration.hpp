@@ -15,10 +15,11 @@
 // curve, estimateExposureRatio) and the warning says so: the curve's overall exponent then rests on that estimate.
 //
 // Frames. Handheld frames are registered onto the middle exposure (registration.hpp; the histogram equalisation
-// there removes the exposure difference); a frame that does not register is refused (not the same scene).
+// there removes the exposure difference), translation first (phase correlation + ECC; AKAZE features only for a frame
+// that path does not settle); a frame that does not register is refused (not the same scene).
 // Samples. Scene points on flat areas (the largest local standard deviation over the frames is among the lowest of
 // their brightness class), spread over the brightness range; a point's value is the local mean of each channel;
-// values near 0 (noise floor) or 1 (clipping) are not data.
+// values near 0 (noise floor) or 1 (clipping) are not data, nor are points of a vivid colour (max_saturation).
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -47,6 +48,11 @@ struct BracketSamplingOptions {
   int candidates = 60000;        // candidate positions on a regular grid of the reference frame
   double low = 0.02;             // a channel value below this (unit scale) is the noise floor: not data
   double high = 0.97;            // … at or above this: clipped, not data
+  // A scene point is data only while its colour is at most this saturated, (max − min)/max over R, G, B in its
+  // brightest unclipped frame: cameras render vivid colours through gamut mapping / saturation that no per-channel
+  // curve describes. 1: every colour. Chosen on the "choose" cameras of `crfcal bench references`
+  // (docs/RESULTS.md#bracket).
+  double max_saturation = 0.3;
   int margin = 8;                // pixels kept away from the frame and the registered overlap's border
   std::uint64_t seed = 1;        // deterministic draw
   void check() const;            // throws InvalidInput
@@ -58,7 +64,13 @@ struct BracketCalibrationOptions {
   // are anyway): the curve needs a few hundred flat points, not megapixels; 6 MP frames took 20 s to register and
   // sample at full size. 0: full size.
   int max_dimension = 1024;
-  RegistrationOptions registration;
+  // Translation first (phase correlation + ECC; AKAZE only for frames it does not settle): a bracket is usually shot
+  // from a tripod or a steady hand, and the features were ¾ of the registration's cost.
+  RegistrationOptions registration = [] {
+    RegistrationOptions r;
+    r.translation_first = true;
+    return r;
+  }();
   BracketSamplingOptions sampling;
   // The EMoR fit (chart_calibration.hpp). K by 2-fold cross-validation over scene points up to max_terms; the scales
   // (one per point) are profiled out.

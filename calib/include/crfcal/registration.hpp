@@ -5,6 +5,8 @@
 // 1. Coarse: a global motion on a downscaled copy: AKAZE features + ratio-test matching + RANSAC, refined by ECC
 //    (cv::findTransformECC, both images Gaussian-smoothed so that the blur difference matters less). Without
 //    enough feature matches (e.g. strong blur), phase correlation gives the translation that seeds ECC.
+//    With translation_first (brackets): phase correlation + ECC is tried before the features, which are detected
+//    only when that alignment's correlation stays below translation_first_correlation.
 // 2. Kernel-aware refinement (refineRegistration): once a kernel K is known, ECC between I ⊗ K and B — now
 //    equally blurred, so the blur no longer biases the alignment (an asymmetric handheld kernel drags a plain
 //    sharp-vs-blurred ECC towards its centroid and, with a homography's 8 degrees of freedom, into spurious
@@ -12,6 +14,7 @@
 // Motion model: Euclidean (rotation + translation) by default — a handheld camera turns by a fraction of a
 // degree, whose perspective terms are far below a pixel; affine and homography are options. The sub-pixel
 // residual translation is left to the kernel, which absorbs it (Sec. 4, [27]).
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -36,6 +39,12 @@ struct RegistrationOptions {
   int ecc_smoothing = 5;           // Gaussian filter size used inside ECC (odd)
   double min_correlation = 0.5;    // ECC correlation below this after alignment: the pair does not overlap
   double min_overlap = 0.4;        // fraction of the blurred frame covered by the warped sharp frame
+  // Tripod-like frames (a bracket): phase correlation + ECC first, and the AKAZE features (three quarters of a
+  // registration's cost) only when that alignment's ECC correlation stays below `translation_first_correlation`
+  // (ECC did not converge, or it stopped in a poorer optimum: a larger rotation or scale change than ECC's capture
+  // range from a translation). Off by default: the pair registration keeps its features-first path.
+  bool translation_first = false;
+  double translation_first_correlation = 0.9;
   void check() const;              // throws InvalidInput
 };
 
@@ -67,16 +76,26 @@ struct RegistrationTarget {
   cv::Size size;                        // the target's full-resolution size
   double scale = 1;                     // working-copy scale (registerPair's, for images of `sharp_size`)
   cv::Mat normalised;                   // 8-bit, histogram-equalised, at `scale`
+  bool with_features = false;           // keypoints and descriptors detected
   std::vector<cv::KeyPoint> keypoints;  // AKAZE, at most options.max_features
   cv::Mat descriptors;
 };
 // Prepares `blurred` for registering images of `sharp_size` onto it (the working scale depends on both sizes).
+// `features` false: the normalised copy only (translation-first registrations may never need the features;
+// addTargetFeatures adds them later).
 RegistrationTarget prepareRegistrationTarget(const cv::Mat& blurred, cv::Size sharp_size,
-                                             const RegistrationOptions& options = {});
+                                             const RegistrationOptions& options = {}, bool features = true);
+void addTargetFeatures(RegistrationTarget& target, const RegistrationOptions& options = {});
 // registerPair onto a prepared target. Throws InvalidInput when `sharp` needs another working scale than the one the
-// target was prepared for, or as registerPair does.
+// target was prepared for, or as registerPair does. A target without features has them detected for this call
+// (when the features are needed).
 RegistrationResult registerPair(const cv::Mat& sharp, const RegistrationTarget& target,
                                 const RegistrationOptions& options = {});
+// The translation-first step of registerPair alone (phase correlation + ECC, no features): the registration when its
+// ECC correlation reaches options.translation_first_correlation and it passes registerPair's overlap checks, else
+// nothing (the caller then needs the features: registerPair with translation_first off).
+std::optional<RegistrationResult> registerByTranslation(const cv::Mat& sharp, const RegistrationTarget& target,
+                                                        const RegistrationOptions& options = {});
 
 // Kernel-aware refinement of `coarse`: ECC (the options' motion model) between I ⊗ K and B, both normalised.
 // `sharp`, `blurred`: single-channel, any depth; `sharp_valid` (optional CV_8U, sharp frame): pixels of I to use.
