@@ -5,6 +5,7 @@
 // held-out drop from the runner-up's model to its own, with the same score test as every effect's own test
 // (scoreTest: z = Σ d / (2 σ sqrt(A Σ δ²)), d the per-sample drop, δ the change of prediction).
 #include <algorithm>
+#include <array>
 #include <exception>
 #include <limits>
 #include <optional>
@@ -19,15 +20,28 @@ std::vector<Candidate> levelCandidates(const EffectSearch& search, const Problem
   std::vector<const LevelEffect*> effects;
   for (const LevelEffect* effect : levelEffects())
     if (!effect->not_applicable(search) && !effect->in(base)) effects.push_back(effect);
-  // Independent fits of the same problem: one candidate per core, kept in levelEffects() order.
+  // Each candidate's evaluation is three independent fits of the same problem (either fold, all samples): 3n jobs
+  // over the cores, so that the dearest candidate (clipping fits a grid of plateau levels) does not leave the other
+  // core idle once the cheap ones are done. The results are those of problem.evaluate, in levelEffects() order.
   const int n = static_cast<int>(effects.size());
+  std::vector<Spec> extended(n);
+  for (int i = 0; i < n; ++i) extended[i] = effects[i]->extend(base);
+  std::vector<std::array<PartFit, 3>> parts(n);  // fold 0, fold 1, all samples
+  const std::vector<std::exception_ptr> fit_errors = detail::runInParallel(3 * n, [&](int job) {
+    const int i = job / 3, part = job % 3;
+    parts[i][part] = problem.fitPart(extended[i], part == 2 ? -1 : part, &base_eval);
+  });
+  for (const std::exception_ptr& error : fit_errors)
+    if (error) std::rethrow_exception(error);
   std::vector<std::optional<Candidate>> out(n);
   const std::vector<std::exception_ptr> errors = detail::runInParallel(n, [&](int i) {
     const LevelEffect& effect = *effects[i];
-    const Spec extended = effect.extend(base);
-    Candidate c{effect.name, problem.evaluate(extended, true, &base_eval), {}, false, false};
+    Candidate c{effect.name,
+                problem.assemble(extended[i], true, {std::move(parts[i][0]), std::move(parts[i][1])},
+                                 std::move(parts[i][2])),
+                {}, false, false};
     c.cmp = effect.test(search, base_eval, c.eval);
-    c.plausible = physical(extended, c.eval, search.nc, search.terms);
+    c.plausible = physical(extended[i], c.eval, search.nc, search.terms);
     c.passes = c.plausible && c.cmp.gain >= search.options.min_gain && c.cmp.z >= search.options.min_z;
     out[i] = std::move(c);
   });

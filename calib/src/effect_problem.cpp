@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <limits>
 
 #include "crfcal/blur_model.hpp"
@@ -11,6 +12,7 @@
 #include "crfcal/kernel.hpp"
 #include "crfcal/noise_estimation.hpp"
 #include "noise_debias_cache.hpp"
+#include "parallel_jobs.hpp"
 
 namespace crfcal::effect {
 
@@ -99,12 +101,15 @@ void blurBasis(Prepared& p, const cv::Mat& K, int phi_terms) {
   const int nc = static_cast<int>(p.I.size());
   p.blurred_basis.assign(nc, {});
   p.basis_at_B.assign(nc, {});
-  for (int c = 0; c < nc; ++c)
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(nc, [&](int c) {  // one channel per core
     for (int k = 1; k <= phi_terms; ++k) {
       const auto span = emor::inverseBasis(k);
       p.blurred_basis[c].push_back(blurredLevelFunction(p, c, span, K));
       p.basis_at_B[c].push_back(applyTable(p.B[c], std::vector<double>(span.begin(), span.end())));
     }
+  });
+  for (const std::exception_ptr& error : errors)
+    if (error) std::rethrow_exception(error);
 }
 
 // ---- folds ---------------------------------------------------------------------------------------------------------
@@ -155,14 +160,17 @@ LevelImages levelImages(const Prepared& p, const std::vector<Curve>& curves, con
   li.X.resize(nc);
   li.P.resize(nc);
   li.KH.resize(nc);
-  for (int c = 0; c < nc; ++c) {
+  // The channels' images are independent (the blur of φ(I) is most of the cost): one channel per core.
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(nc, [&](int c) {
     li.phiB[c] = curves[c].curve.inverse(p.B[c]);
     li.X[c] = blurredLevelFunction(p, c, curves[c].phi, K);
     for (int k = 1; k <= phi_terms; ++k) {
       li.KH[c].push_back(p.blurred_basis[c].at(k - 1));
       li.P[c].push_back(ratios[c] * li.KH[c].back() - p.basis_at_B[c].at(k - 1));
     }
-  }
+  });
+  for (const std::exception_ptr& error : errors)
+    if (error) std::rethrow_exception(error);
   return li;
 }
 
@@ -441,20 +449,15 @@ std::vector<ChannelFit> Problem::fitAll(const Spec& spec, int fold, std::vector<
 }
 
 // Parameters fitted on one fold, the error measured on the other, both ways.
-void Problem::heldoutResiduals(const Spec& spec, const Evaluation* warm, Evaluation& ev) const {
-  std::array<std::vector<ChannelFit>, 2> f;
-  std::array<std::vector<std::vector<double>>, 2> xs;
-  for (int fold = 0; fold < 2; ++fold) {
-    f[fold] = fitAll(spec, fold, xs[fold], warmStarts(warm, fold, spec));
-    ev.folds[fold] = f[fold];
-  }
+void Problem::heldoutResiduals(const Spec& spec, const std::array<PartFit, 2>& folds, Evaluation& ev) const {
+  for (int fold = 0; fold < 2; ++fold) ev.folds[fold] = folds[fold].fits;
   for (const auto& s : s_) {
     const int c = self(s);
     for (std::size_t i = 0; i < s.size(); ++i) {
-      const int held = 1 - s.fold[i];  // parameters from the other fold
-      if (!f[held][c].ok) continue;
-      coupled_ = spec.mixing ? &xs[held] : nullptr;
-      const double e = residual(s, i, spec, f[held][c]);
+      const PartFit& held = folds[1 - s.fold[i]];  // parameters from the other fold
+      if (!held.fits[c].ok) continue;
+      coupled_ = spec.mixing ? &held.xs : nullptr;
+      const double e = residual(s, i, spec, held.fits[c]);
       coupled_ = nullptr;
       ev.block_error[s.block[i]] += e * e;
       ev.fine_error[s.fine[i]] += e * e;
@@ -465,19 +468,36 @@ void Problem::heldoutResiduals(const Spec& spec, const Evaluation* warm, Evaluat
   }
 }
 
-// warm: a nested smaller model's evaluation; its per-fold fits start the LM of this one (new parameters at 0),
-// so that the comparison reflects the added parameters, not where the optimiser stopped.
-Evaluation Problem::evaluate(const Spec& spec, bool heldout, const Evaluation* warm) const {
+PartFit Problem::fitPart(const Spec& spec, int fold, const Evaluation* warm) const {
+  PartFit part;
+  part.fits = fitAll(spec, fold, part.xs, warmStarts(warm, fold, spec));
+  return part;
+}
+
+Evaluation Problem::assemble(const Spec& spec, bool heldout, const std::array<PartFit, 2>& folds, PartFit full) const {
   Evaluation ev;
   ev.block_error.assign(blocks_, 0.0);
   ev.fine_error.assign(fine_blocks_, 0.0);
   ev.residual.resize(s_.size());
   for (const auto& s : s_) ev.residual[self(s)].assign(s.size(), 0.0);
-  if (heldout) heldoutResiduals(spec, warm, ev);
-  std::vector<std::vector<double>> xs;
-  ev.full = fitAll(spec, -1, xs, warmStarts(warm, -1, spec));
+  if (heldout) heldoutResiduals(spec, folds, ev);
+  ev.full = std::move(full.fits);
   ev.spec = spec;
   return ev;
+}
+
+// warm: a nested smaller model's evaluation; its per-fold fits start the LM of this one (new parameters at 0),
+// so that the comparison reflects the added parameters, not where the optimiser stopped.
+// The parts' fits are independent: one per core (inside a parallel caller's job they run in its thread).
+Evaluation Problem::evaluate(const Spec& spec, bool heldout, const Evaluation* warm) const {
+  std::array<PartFit, 3> parts;  // fold 0, fold 1, all samples
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(heldout ? 3 : 1, [&](int job) {
+    const int part = heldout ? job : 2;
+    parts[part] = fitPart(spec, part == 2 ? -1 : part, warm);
+  });
+  for (const std::exception_ptr& error : errors)
+    if (error) std::rethrow_exception(error);
+  return assemble(spec, heldout, {std::move(parts[0]), std::move(parts[1])}, std::move(parts[2]));
 }
 
 Eigen::VectorXd Problem::expand(const Spec& from, const Eigen::VectorXd& t, const Spec& to, int nc, int terms) const {

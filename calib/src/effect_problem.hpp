@@ -148,6 +148,13 @@ struct Evaluation {
   Spec spec;
 };
 
+// One part of an evaluation: the channels' fits on one fold (0, 1) or on all samples, with the other channels' X_d
+// they were coupled to (mixing).
+struct PartFit {
+  std::vector<ChannelFit> fits;
+  std::vector<std::vector<double>> xs;
+};
+
 class Problem {
  public:
   Problem() = default;
@@ -198,6 +205,10 @@ class Problem {
                                  const std::vector<Eigen::VectorXd>& starts) const;
   // Held-out errors of `spec` (both folds) and its fit on all samples; `warm`: a nested smaller model's evaluation.
   Evaluation evaluate(const Spec& spec, bool heldout = true, const Evaluation* warm = nullptr) const;
+  // evaluate() in parts, for callers that run the parts in parallel: the fits on `fold` (−1: all samples) started
+  // from `warm`'s fits of that part, and the evaluation assembled from them (folds used only when heldout).
+  PartFit fitPart(const Spec& spec, int fold, const Evaluation* warm) const;
+  Evaluation assemble(const Spec& spec, bool heldout, const std::array<PartFit, 2>& folds, PartFit full) const;
   // A nested model's θ mapped into a larger one's column layout.
   Eigen::VectorXd expand(const Spec& from, const Eigen::VectorXd& t, const Spec& to, int nc, int terms) const;
   std::vector<Eigen::VectorXd> warmStarts(const Evaluation* warm, int fold, const Spec& spec) const;
@@ -209,7 +220,7 @@ class Problem {
   Eigen::VectorXd linearStart(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use, int cols) const;
   void levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
                           Eigen::VectorXd& theta) const;
-  void heldoutResiduals(const Spec& spec, const Evaluation* warm, Evaluation& ev) const;
+  void heldoutResiduals(const Spec& spec, const std::array<PartFit, 2>& folds, Evaluation& ev) const;
 
   std::vector<Samples> s_;
   int blocks_ = 0, fine_blocks_ = 0;

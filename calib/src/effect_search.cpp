@@ -5,11 +5,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <limits>
 
 #include "crfcal/error.hpp"
 #include "crfcal/response_model.hpp"
 #include "effect_problem.hpp"
+#include "parallel_jobs.hpp"
 
 namespace crfcal::effect {
 
@@ -193,15 +195,22 @@ void describeSelectedModel(EffectSearch& search) {
     search.coef.push_back(search.current_eval.full[c].ok
                               ? coefficients(search.current, search.current_eval.full[c], c, nc, search.terms)
                               : Coefficients{});
-  for (const LevelEffect* effect : levelEffects()) {
-    if (effect->not_applicable(search)) continue;
-    EffectEntry& e = search.entry(effect->name);
-    if (effect->in(search.current)) {
-      effect->describe(search, search.current, search.current_eval, e);
-    } else {
-      const Spec s = effect->extend(search.current);
-      effect->describe(search, s, search.problem.evaluate(s, false), e);
-    }
+  std::vector<const LevelEffect*> effects;
+  for (const LevelEffect* effect : levelEffects())
+    if (!effect->not_applicable(search)) effects.push_back(effect);
+  // The fits of the model extended by each effect not in it are independent: one per core.
+  const int n = static_cast<int>(effects.size());
+  std::vector<Evaluation> extended(n);
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(n, [&](int i) {
+    if (!effects[i]->in(search.current))
+      extended[i] = search.problem.evaluate(effects[i]->extend(search.current), false);
+  });
+  for (int i = 0; i < n; ++i) {
+    if (errors[i]) std::rethrow_exception(errors[i]);
+    const LevelEffect& effect = *effects[i];
+    EffectEntry& e = search.entry(effect.name);
+    if (effect.in(search.current)) effect.describe(search, search.current, search.current_eval, e);
+    else effect.describe(search, extended[i].spec, extended[i], e);
   }
 }
 

@@ -30,11 +30,15 @@ namespace {
 // The least-squares problem of the kernel entries: rows are weighted samples, columns [K₀ | u K₀ | v K₀] entries.
 // Every solve goes through the normal equations of one fold (or both): the per-fold Gram matrices DᵀD and Dᵀt are
 // accumulated once (normalEquations), and the base fit (the first m columns) reads their leading block, so the
-// 3m × 3m products, the test's whole cost, are formed once per fold instead of once per solve.
+// 3m × 3m products, the test's whole cost, are formed once per fold instead of once per solve. Only the m weighted
+// kernel-footprint values a of each row are stored; the row [a | u a | v a] is formed in chunks while the Gram
+// matrices accumulate (the whole design, n × 3m, was ~100 MB for a 189-entry support at 0.1 MP, most of a real
+// pair's peak memory and page faults).
 struct KernelDesign {
   std::vector<cv::Point> support;   // kernel entries fitted
   std::vector<std::size_t> idx;     // the samples used
-  Eigen::MatrixXd D;
+  Eigen::MatrixXd A;                // n × m: the weighted footprint values a of each row
+  Eigen::VectorXd u, v;             // the rows' positions relative to the centre, over the half-diagonal
   Eigen::VectorXd t;
   std::vector<int> fold;
   std::array<Eigen::MatrixXd, 2> gram;  // per fold: DᵀD (lower triangle filled, symmetric)
@@ -42,17 +46,40 @@ struct KernelDesign {
   int m() const { return static_cast<int>(support.size()); }
   int n() const { return static_cast<int>(idx.size()); }
 
+  // Row r's prediction: [a | u a | v a] · θ, or a · θ for the base model (θ of m entries).
+  double predict(int r, const Eigen::VectorXd& theta) const {
+    const int cols = static_cast<int>(theta.size()), k = m();
+    double p = A.row(r).dot(theta.head(k));
+    if (cols == 3 * k) p += u(r) * A.row(r).dot(theta.segment(k, k)) + v(r) * A.row(r).dot(theta.tail(k));
+    return p;
+  }
+
   // The folds' Gram matrices (n·(3m)²/2 each, the test's main cost) are independent: one per core.
   void normalEquations() {
+    const int k = m();
     const auto errors = detail::runInParallel(2, [&](int f) {
       std::vector<Eigen::Index> rows;
       for (int r = 0; r < n(); ++r)
         if (fold[r] == f) rows.push_back(r);
-      const Eigen::MatrixXd Df = D(rows, Eigen::all);
-      gram[f] = Eigen::MatrixXd::Zero(D.cols(), D.cols());
-      gram[f].selfadjointView<Eigen::Lower>().rankUpdate(Df.transpose());
+      gram[f] = Eigen::MatrixXd::Zero(3 * k, 3 * k);
+      rhs[f] = Eigen::VectorXd::Zero(3 * k);
+      constexpr std::size_t kChunk = 512;  // rows per rank update: large enough for Eigen's blocked product
+      Eigen::MatrixXd chunk;
+      for (std::size_t start = 0; start < rows.size(); start += kChunk) {
+        const Eigen::Index count = static_cast<Eigen::Index>(std::min(kChunk, rows.size() - start));
+        chunk.resize(count, 3 * k);
+        Eigen::VectorXd target(count);
+        for (Eigen::Index i = 0; i < count; ++i) {
+          const Eigen::Index r = rows[start + static_cast<std::size_t>(i)];
+          chunk.row(i).head(k) = A.row(r);
+          chunk.row(i).segment(k, k) = u(r) * A.row(r);
+          chunk.row(i).tail(k) = v(r) * A.row(r);
+          target(i) = t(r);
+        }
+        gram[f].selfadjointView<Eigen::Lower>().rankUpdate(chunk.transpose());
+        rhs[f].noalias() += chunk.transpose() * target;
+      }
       gram[f] = gram[f].selfadjointView<Eigen::Lower>();
-      rhs[f] = Df.transpose() * t(rows);
     });
     for (const auto& e : errors)
       if (e) std::rethrow_exception(e);
@@ -60,11 +87,11 @@ struct KernelDesign {
 
   // Least squares on one fold (−1: all rows) with the first `cols` columns.
   Eigen::VectorXd solve(int f, int cols) const {
-    Eigen::MatrixXd A = f < 0 ? Eigen::MatrixXd(gram[0].topLeftCorner(cols, cols) + gram[1].topLeftCorner(cols, cols))
+    Eigen::MatrixXd G = f < 0 ? Eigen::MatrixXd(gram[0].topLeftCorner(cols, cols) + gram[1].topLeftCorner(cols, cols))
                               : Eigen::MatrixXd(gram[f].topLeftCorner(cols, cols));
     const Eigen::VectorXd b = f < 0 ? Eigen::VectorXd(rhs[0].head(cols) + rhs[1].head(cols)) : rhs[f].head(cols);
-    A.diagonal().array() += 1e-9 * A.diagonal().mean() + 1e-300;
-    return Eigen::VectorXd(A.ldlt().solve(b));
+    G.diagonal().array() += 1e-9 * G.diagonal().mean() + 1e-300;
+    return Eigen::VectorXd(G.ldlt().solve(b));
   }
 };
 
@@ -97,24 +124,21 @@ void fillDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, cv::Point2
                 double min_derivative, KernelDesign& kd) {
   const int m = kd.m(), n = kd.n();
   const int cx = K.cols / 2, cy = K.rows / 2;
-  kd.D.resize(n, 3 * m);
+  kd.A.resize(n, m);
+  kd.u.resize(n);
+  kd.v.resize(n);
   kd.t.resize(n);
-  Eigen::VectorXd w(n);
   kd.fold.resize(n);
   for (int r = 0; r < n; ++r) {
     const std::size_t i = kd.idx[r];
     const cv::Point p = s.pos[i];
-    const double u = (p.x - centre.x) / radius, v = (p.y - centre.y) / radius;
-    w(r) = 1.0 / std::max(s.d[i], min_derivative);
-    kd.t(r) = w(r) * s.Y[i];
+    kd.u(r) = (p.x - centre.x) / radius;
+    kd.v(r) = (p.y - centre.y) / radius;
+    const double w = 1.0 / std::max(s.d[i], min_derivative);
+    kd.t(r) = w * s.Y[i];
     kd.fold[r] = s.fold[i];
-    for (int j = 0; j < m; ++j) {
-      // convolve(): out(p) = Σ_j K(j) in(p − (j − c))
-      const double a = w(r) * g.at<double>(p.y - (kd.support[j].y - cy), p.x - (kd.support[j].x - cx));
-      kd.D(r, j) = a;
-      kd.D(r, m + j) = u * a;
-      kd.D(r, 2 * m + j) = v * a;
-    }
+    for (int j = 0; j < m; ++j)  // convolve(): out(p) = Σ_j K(j) in(p − (j − c))
+      kd.A(r, j) = w * g.at<double>(p.y - (kd.support[j].y - cy), p.x - (kd.support[j].x - cx));
   }
 }
 
@@ -141,8 +165,8 @@ BlurTest spatialBlurTest(const Samples& s, const cv::Mat& g, const cv::Mat& K, c
   std::vector<double> block_sum(blocks, 0.0);
   for (int r = 0; r < n; ++r) {
     const int held = 1 - kd.fold[r];
-    const double eb = kd.t(r) - kd.D.row(r).head(m).dot(base[held]);
-    const double ee = kd.t(r) - kd.D.row(r).dot(ext[held]);
+    const double eb = kd.t(r) - kd.predict(r, base[held]);
+    const double ee = kd.t(r) - kd.predict(r, ext[held]);
     e2 += eb * eb;
     sum_d += eb * eb - ee * ee;
     sum_delta2 += (eb - ee) * (eb - ee);
