@@ -32,25 +32,17 @@ void setLearnedPrior(MomentSystem& sys, const CrfFitOptions& options, std::pair<
     e(j, j + 1) = 1 / dl;
   }
   const int nu = static_cast<int>(c.unobserved.size());
-  Eigen::MatrixXd rows(nu, n);
-  for (int a = 0; a < nu; ++a) {
-    rows.row(a) = e.row(c.unobserved[a]);
-    for (std::size_t b = 0; b < c.observed.size(); ++b) rows.row(a) -= c.gain(a, b) * e.row(c.observed[b]);
-  }
+  const Eigen::MatrixXd rows = e(c.unobserved, Eigen::all) - c.gain * e(c.observed, Eigen::all);
   const Eigen::LLT<Eigen::MatrixXd> chol(c.covariance);
   if (chol.info() != Eigen::Success) return;
   // The marginal of the exponents inside (with the observation noise): together with the conditional rows the
   // joint Gaussian p(g_O) p(g_U | g_O). It holds the shapes inside that the data leave free — the affine
   // a + bφ at r = 1 — to those of measured curves.
   const int no = static_cast<int>(c.observed.size());
-  Eigen::MatrixXd inside(no, n), cov_o(no, no);
-  Eigen::VectorXd mean_o(no);
-  for (int a = 0; a < no; ++a) {
-    inside.row(a) = e.row(c.observed[a]);
-    mean_o[a] = options.learned_prior->mean[c.observed[a]];
-    for (int b = 0; b < no; ++b) cov_o(a, b) = options.learned_prior->covariance(c.observed[a], c.observed[b]);
-    cov_o(a, a) += std::pow(options.learned_prior->observed_exponent_sigma, 2);
-  }
+  const Eigen::MatrixXd inside = e(c.observed, Eigen::all);
+  const Eigen::VectorXd mean_o = options.learned_prior->mean(c.observed);
+  Eigen::MatrixXd cov_o = options.learned_prior->covariance(c.observed, c.observed);
+  cov_o.diagonal().array() += std::pow(options.learned_prior->observed_exponent_sigma, 2);
   const Eigen::LLT<Eigen::MatrixXd> chol_o(cov_o);
   if (no > 0 && chol_o.info() != Eigen::Success) return;
   const double w = std::sqrt(options.learned_prior_weight);

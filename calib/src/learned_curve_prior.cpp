@@ -90,18 +90,11 @@ ConditionalExponents conditionOnCovered(const LearnedCurvePrior& prior, std::pai
     (inside ? c.observed : c.unobserved).push_back(j - 1);
   }
   const int nu = static_cast<int>(c.unobserved.size()), no = static_cast<int>(c.observed.size());
-  Eigen::MatrixXd s_uu(nu, nu), s_uo(nu, no), s_oo(no, no);
-  Eigen::VectorXd m_u(nu), m_o(no);
-  for (int a = 0; a < nu; ++a) {
-    m_u[a] = prior.mean[c.unobserved[a]];
-    for (int b = 0; b < nu; ++b) s_uu(a, b) = prior.covariance(c.unobserved[a], c.unobserved[b]);
-    for (int b = 0; b < no; ++b) s_uo(a, b) = prior.covariance(c.unobserved[a], c.observed[b]);
-  }
-  for (int a = 0; a < no; ++a) {
-    m_o[a] = prior.mean[c.observed[a]];
-    for (int b = 0; b < no; ++b) s_oo(a, b) = prior.covariance(c.observed[a], c.observed[b]);
-    s_oo(a, a) += prior.observed_exponent_sigma * prior.observed_exponent_sigma;
-  }
+  const Eigen::MatrixXd s_uu = prior.covariance(c.unobserved, c.unobserved);
+  const Eigen::MatrixXd s_uo = prior.covariance(c.unobserved, c.observed);
+  Eigen::MatrixXd s_oo = prior.covariance(c.observed, c.observed);
+  s_oo.diagonal().array() += prior.observed_exponent_sigma * prior.observed_exponent_sigma;
+  const Eigen::VectorXd m_u = prior.mean(c.unobserved), m_o = prior.mean(c.observed);
   if (no == 0) {
     c.gain = Eigen::MatrixXd::Zero(nu, 0);
     c.offset = m_u;
