@@ -164,6 +164,12 @@ const CommandRegistration registration(
       command.add_option("--exposure-rounds", args->options.exposure_rounds,
                          "Refinements of the inner frames' exposures (the darkest and brightest keep their ratio)")
           ->check(CLI::Range(0, 10));
+      command.add_option("--band-replicates", args->options.band.replicates,
+                         "Refits on halves of the scene points per channel for the 90 % band of phi (even; 0: no band)")
+          ->capture_default_str()
+          ->check(CLI::Range(0, 200) & CLI::Validator([](std::string& v) {
+                    return std::stoi(v) % 2 ? std::string("must be even") : std::string();
+                  }, "EVEN"));
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runBracket(*args); };
     });

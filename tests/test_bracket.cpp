@@ -14,6 +14,7 @@
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/registration.hpp"
+#include "crfcal/io/band_report.hpp"
 #include "crfcal/io/datasets.hpp"
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/image_io.hpp"
@@ -244,6 +245,18 @@ TEST(BracketCli, WritesAReportThatCompareAndExportRead) {
   EXPECT_EQ(report.channels().size(), 3u);
   EXPECT_TRUE(fs::exists(dir / "out" / "curve.png"));
   EXPECT_TRUE(fs::exists(dir / "out" / "points.png"));
+  // The band of every channel (scaled_fit_band.hpp), as the pair's band is written: around the curve, φ(1) = 1.
+  const auto bands = io::readCurveBands(report);
+  ASSERT_EQ(bands.size(), 3u);
+  for (const auto& [name, band] : bands) {
+    const std::vector<double>& phi = report.inverse_crf.at(name);
+    ASSERT_EQ(band.lower.size(), phi.size()) << name;
+    for (std::size_t i = 0; i < phi.size(); i += 64) {
+      EXPECT_LE(band.lower[i], phi[i] + 1e-9) << name << " at " << i;
+      EXPECT_GE(band.upper[i], phi[i] - 1e-9) << name << " at " << i;
+    }
+    EXPECT_GT(band.replicates, 0) << name;
+  }
   const auto compared = test::run(crfcal + " compare -q " + (dir / "out" / "report.json").string() + " " +
                                   (dir / "out" / "report.json").string() + " --tolerance 1e-9");
   EXPECT_EQ(compared.exit_code, 0) << compared.output;
@@ -251,6 +264,9 @@ TEST(BracketCli, WritesAReportThatCompareAndExportRead) {
                                   (dir / "curve.cube").string());
   EXPECT_EQ(exported.exit_code, 0) << exported.output;
   EXPECT_TRUE(fs::exists(dir / "curve.cube"));
+  const auto exported_band = test::run(crfcal + " export " + (dir / "out" / "report.json").string() +
+                                       " --band upper -o " + (dir / "upper.cube").string());
+  EXPECT_EQ(exported_band.exit_code, 0) << exported_band.output;
   // The output safety of every writing command: a foreign file in the output directory is refused without --force.
   { std::ofstream(dir / "out" / "mine.txt") << "not crfcal's"; }
   const auto again = test::run(crfcal + " bracket -q" + inputs + " -o " + (dir / "out").string());

@@ -4,6 +4,7 @@
 #include <exception>
 #include <cstdio>
 #include <limits>
+#include <map>
 #include <cmath>
 #include <numeric>
 #include <random>
@@ -17,6 +18,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/exposure_fit.hpp"
 #include "crfcal/response_curve.hpp"
+#include "crfcal/scaled_fit_band.hpp"
 #include "image_units.hpp"
 #include "parallel_jobs.hpp"
 
@@ -40,6 +42,7 @@ void BracketCalibrationOptions::check() const {
   registration.check();
   sampling.check();
   fit.check();
+  band.check();
   if (max_dimension < 0 || (max_dimension > 0 && max_dimension < 64))
     throw InvalidInput("bracket: max_dimension must be 0 or ≥ 64", ErrorSubject::options);
   if (exposure_rounds < 0) throw InvalidInput("bracket: exposure_rounds must be ≥ 0", ErrorSubject::options);
@@ -57,9 +60,13 @@ std::string BracketCalibrationResult::summary() const {
   out << points << " scene points; exposures (" << exposure_source << ", relative to the reference):";
   for (const auto& f : frames) out << ' ' << f.fitted_exposure << (f.reference ? "*" : "");
   out << "\n";
-  for (const auto& c : channels)
+  for (const auto& c : channels) {
     out << channelName(c.channel) << ": " << c.fit.summary() << ", " << c.points << " points, GGCM deviation "
         << c.ggcm_rmse << "\n";
+    if (!c.band.empty())
+      out << "   " << c.band.summary() << "; shape half-width (median, covered range) " << medianShapeHalfWidth(c.band)
+          << "\n";
+  }
   return out.str();
 }
 
@@ -265,6 +272,7 @@ struct Samples {
   std::vector<cv::Point> positions;
   std::vector<std::vector<cv::Vec3f>> values;  // [point][frame]
   std::vector<float> saturation;               // [point]: pointSaturation
+  std::vector<float> roughness;                // [point]: largest local std of the grey over its informative frames
 };
 
 // A point's colour saturation, (max − min)/max over its planes, in the frame where its brightest plane is highest
@@ -336,7 +344,7 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
     bins[static_cast<std::size_t>(b)].push_back(c);
   }
   std::mt19937_64 rng(options.seed);
-  std::vector<cv::Point> chosen;
+  std::vector<Candidate> chosen;
   int remaining_bins = 0;
   for (const auto& bin : bins) remaining_bins += !bin.empty();
   int budget = options.points;
@@ -346,15 +354,15 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
     --remaining_bins;
     std::sort(bin.begin(), bin.end(), [](const auto& a, const auto& b) { return a.roughness < b.roughness; });
     const std::size_t flat = std::max<std::size_t>(1, std::size_t(std::ceil(bin.size() * options.flat_fraction)));
-    std::vector<cv::Point> pool;
-    for (std::size_t i = 0; i < flat; ++i) pool.push_back(bin[i].p);
+    std::vector<Candidate> pool(bin.begin(), bin.begin() + long(flat));
     std::shuffle(pool.begin(), pool.end(), rng);
     const int take = std::min<int>(quota, int(pool.size()));
     chosen.insert(chosen.end(), pool.begin(), pool.begin() + take);
     budget -= take;
   }
   Samples samples;
-  for (const cv::Point& p : chosen) {
+  for (const Candidate& c : chosen) {
+    const cv::Point p = c.p;
     std::vector<cv::Vec3f> v;
     for (const cv::Mat& m : means) {
       if (m.channels() == 1) {
@@ -366,6 +374,7 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
     }
     samples.positions.push_back(p);
     samples.saturation.push_back(pointSaturation(v, options.high));
+    samples.roughness.push_back(c.roughness);
     samples.values.push_back(std::move(v));
   }
   return samples;
@@ -379,8 +388,10 @@ double observationWeight(double z, double exposure, double high) {
   return taper * (z / exposure) * (z / exposure);
 }
 
+// `point_of_group` (optional): the scene point (index into samples) behind each group.
 std::vector<ScaledObservation> channelObservations(const Samples& samples, int plane, const std::vector<double>& exposure,
-                                                   const BracketSamplingOptions& options, int& points) {
+                                                   const BracketSamplingOptions& options, int& points,
+                                                   std::vector<std::size_t>* point_of_group = nullptr) {
   std::vector<ScaledObservation> observations;
   points = 0;
   for (std::size_t p = 0; p < samples.values.size(); ++p) {
@@ -399,6 +410,7 @@ std::vector<ScaledObservation> channelObservations(const Samples& samples, int p
     }
     if (own.size() < 2) continue;  // one value of a point says nothing about φ (its own scale absorbs it)
     observations.insert(observations.end(), own.begin(), own.end());
+    if (point_of_group) point_of_group->push_back(p);
     ++points;
   }
   return observations;
@@ -453,6 +465,54 @@ BracketChannelResult fitChannel(const Samples& samples, int channel, int plane, 
   if (terms > 0) fit_options.terms = terms;
   result.fit = fitScaledInverse(observations, fit_options);
   return result;
+}
+
+// The fit on the flatter half of the scene points (local roughness at most its median): a point's value is the mean of
+// a window of intensities, and mean f(E) ≠ f(mean E) where the window holds texture (Jensen), a bias that resampling
+// the same points cannot see but that shrinks on flatter points, so the difference is the band's model term for it.
+std::vector<double> flatterHalfFit(const std::vector<ScaledObservation>& observations,
+                                   const std::vector<std::size_t>& point_of_group, const Samples& samples,
+                                   const BracketCalibrationOptions& options, int terms) {
+  std::vector<float> roughness;
+  for (std::size_t p : point_of_group) roughness.push_back(samples.roughness[p]);
+  if (roughness.size() < 8) return {};
+  std::nth_element(roughness.begin(), roughness.begin() + long(roughness.size() / 2), roughness.end());
+  const float median = roughness[roughness.size() / 2];
+  std::vector<ScaledObservation> flatter;
+  std::map<int, int> group_of;
+  for (ScaledObservation o : observations) {
+    if (samples.roughness[point_of_group[static_cast<std::size_t>(o.group)]] > median) continue;
+    o.group = group_of.emplace(o.group, static_cast<int>(group_of.size())).first->second;
+    flatter.push_back(o);
+  }
+  try {
+    return fitScaledInverseFixed(flatter, terms, options.fit).inverse;
+  } catch (const InvalidInput&) {
+    return {};  // too few flat observations: no texture term
+  }
+}
+
+// Each channel's band (scaled_fit_band.hpp) on the final exposures' observations, one cluster per scene point, with
+// the flatter half's fit as a model term.
+void addBands(const Samples& samples, const std::vector<int>& planes, const std::vector<double>& exposure,
+              const BracketCalibrationOptions& options, std::vector<BracketChannelResult>& channels) {
+  if (options.band.replicates == 0) return;
+  for (std::size_t ci = 0; ci < channels.size(); ++ci) {
+    int points = 0;
+    std::vector<std::size_t> point_of_group;
+    const std::vector<ScaledObservation> observations =
+        channelObservations(samples, planes[ci], exposure, options.sampling, points, &point_of_group);
+    std::vector<int> cluster(observations.size());
+    std::transform(observations.begin(), observations.end(), cluster.begin(),
+                   [](const ScaledObservation& o) { return o.group; });
+    std::vector<std::vector<double>> alternatives;
+    if (std::vector<double> flatter =
+            flatterHalfFit(observations, point_of_group, samples, options, channels[ci].fit.terms);
+        !flatter.empty())
+      alternatives.push_back(std::move(flatter));
+    channels[ci].band =
+        scaledFitBand(observations, cluster, options.fit, channels[ci].fit, options.band, alternatives);
+  }
 }
 
 }  // namespace
@@ -552,6 +612,7 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
     result.frames[j].start_exposure = start[j];
     result.frames[j].fitted_exposure = exposure[j];
   }
+  addBands(samples, planes, exposure, options, result.channels);
   for (auto& channel : result.channels) {
     const ggcm::FitResult g = ggcm::fitInverse(channel.fit.inverse, options.ggcm);
     channel.ggcm = g.model;

@@ -4,7 +4,7 @@
 
 namespace crfcal::io {
 
-nlohmann::json curveBandsJson(const std::map<std::string, CurveBand>& bands) {
+nlohmann::json curveBandsJson(const std::map<std::string, CurveBand>& bands, const std::string& method) {
   nlohmann::json out = nlohmann::json::object();
   for (const auto& [name, band] : bands) {
     if (band.empty()) continue;
@@ -17,8 +17,7 @@ nlohmann::json curveBandsJson(const std::map<std::string, CurveBand>& bands) {
                  {"scale_range", {band.scale_range.first, band.scale_range.second}},
                  {"exponent_above", {band.exponent_above.first, band.exponent_above.second}},
                  {"covered", {band.covered.first, band.covered.second}},
-                 {"method", "half-sample block refits (shape) + local-exponent bounds beyond the covered range "
-                            "(scale); curve_band.hpp"}};
+                 {"method", method}};
   }
   return out;
 }

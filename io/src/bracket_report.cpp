@@ -2,15 +2,21 @@
 
 #include <cmath>
 #include <cstdio>
+#include <map>
 
 #include <opencv2/imgproc.hpp>
 
+#include "crfcal/io/band_report.hpp"
 #include "crfcal/io/figures.hpp"
 #include "crfcal/io/plot.hpp"
 #include "crfcal/io/response_io.hpp"
 
 namespace crfcal::io {
 namespace {
+
+constexpr const char* kBracketBandMethod =
+    "half-sample refits of the scene points, K and exposures held (shape) + local-exponent bounds beyond the covered "
+    "range (scale); scaled_fit_band.hpp";
 
 nlohmann::json optionalNumber(const std::optional<double>& v) { return v ? nlohmann::json(*v) : nlohmann::json(nullptr); }
 
@@ -65,11 +71,14 @@ CalibrationReport bracketReport(const BracketCalibrationResult& result, const st
   report.command = "bracket";
   report.warnings = result.warnings;
   nlohmann::json channels = nlohmann::json::object();
+  std::map<std::string, CurveBand> bands;
   for (const auto& c : result.channels) {
     const std::string name = channelName(c.channel);
     addScaledFitChannel(report, name, c.fit, c.ggcm);
     channels[name] = channelJson(c);
+    if (!c.band.empty()) bands[name] = c.band;
   }
+  if (!bands.empty()) report.extra["inverse_crf_band"] = curveBandsJson(bands, kBracketBandMethod);
   nlohmann::json frames = nlohmann::json::array();
   for (std::size_t j = 0; j < result.frames.size(); ++j)
     frames.push_back(frameJson(result.frames[j], j < exif.size() ? &exif[j] : nullptr));
@@ -100,6 +109,9 @@ void writeBracketFigures(const std::filesystem::path& curve_png, const std::file
     piece(0, lo, "", 1);
     piece(hi, 1, "", 1);
     piece(lo, hi, "phi " + name + " (EMoR K=" + std::to_string(c.fit.terms) + ", " + std::to_string(c.points) + " points)", 2);
+    if (c.band.lower.size() == x.size())
+      plot.bands.push_back({x, c.band.lower, c.band.upper, channelColour(name),
+                            number("%.0f", 100 * c.band.level) + " % band " + name + " (shaded)"});
     plot.x_ranges.push_back({lo, hi, channelColour(name),
                              "data " + name + ": x " + number("%.2f", lo) + " - " + number("%.2f", hi)});
   }

@@ -28,6 +28,7 @@
 #include <opencv2/core.hpp>
 
 #include "crfcal/chart_calibration.hpp"
+#include "crfcal/curve_band.hpp"
 #include "crfcal/ggcm.hpp"
 #include "crfcal/registration.hpp"
 
@@ -94,6 +95,10 @@ struct BracketCalibrationOptions {
   int exposure_rounds = 1;             // refinements of the inner frames' exposures (each followed by a refit)
   double max_exposure_deviation = 1;   // stops a refined exposure may move away from its start
   ggcm::FitOptions ggcm;               // the EMoR result converted to GGCM (seed Eq. 19) for the report's models
+  // The pointwise band of each channel's φ (scaled_fit_band.hpp): refits on halves of the scene points with K and
+  // the exposures held, then curve_band.hpp's bounds beyond the covered range. replicates = 0: no band. The refits
+  // fit only the K the full fit chose, so no model term (include_model_spread has no alternative to add).
+  CurveBandOptions band;
   std::vector<int> channels{0, 1, 2};  // R, G, B (grey frames: channel 1 only)
   void check() const;                  // throws InvalidInput
 };
@@ -105,6 +110,7 @@ struct BracketChannelResult {
   double ggcm_rmse = 0;  // RMSE between the GGCM and the EMoR curve
   bool ggcm_valid = true;
   int points = 0;        // scene points with ≥ 2 usable observations in this channel
+  CurveBand band;        // empty when options.band.replicates = 0 or too few scene points to halve
 };
 
 struct BracketFrameResult {

@@ -5,7 +5,8 @@
 //                              "replicates": n, "failed_replicates": n, "scale_range": [s_lo, s_hi],
 //                              "exponent_above": [g_lo, g_hi], "covered": [x_lo, x_hi], "method": "..."}, …}
 // The covered range itself is report.json's "covered_range" (report.hpp); "covered" repeats the range the band
-// was built on. Reports without a band (older ones, chart, simulate's truth) read as none.
+// was built on. Reports without a band (older ones, chart, simulate's truth) read as none; bracket reports have one
+// (scaled_fit_band.hpp).
 #include <map>
 #include <string>
 
@@ -16,7 +17,10 @@
 
 namespace crfcal::io {
 
-nlohmann::json curveBandsJson(const std::map<std::string, CurveBand>& bands);
+// `method`: how the bands were made, for the record (the pair's block bootstrap by default; the bracket says its own).
+nlohmann::json curveBandsJson(const std::map<std::string, CurveBand>& bands,
+                              const std::string& method = "half-sample block refits (shape) + local-exponent bounds "
+                                                          "beyond the covered range (scale); curve_band.hpp");
 // The bands of a report (its "inverse_crf_band"); empty when it has none. Throws crfcal::Error naming `source` for
 // a malformed band (limits of another length than the channel's curve).
 std::map<std::string, CurveBand> readCurveBands(const CalibrationReport& report, const std::string& source = {});

@@ -1,12 +1,13 @@
 #pragma once
 // The output of `crfcal bracket` (bracket_calibration.hpp): report.json in the common schema of report.hpp (so that
 // `compare` and `export` read it like every other report) and its pictures:
-//   curve.png   φ per channel (thick where the data support it, thin where extrapolated; bars: covered ranges) and
-//               the observations φ = t_j/s_p of a subset of the scene points
+//   curve.png   φ per channel (thick where the data support it, thin where extrapolated; bars: covered ranges; the
+//               90 % band shaded)
 //   points.png  the scene points drawn, over a dimmed copy of the reference frame
 // Bracket's keys beyond report.hpp's common ones: "bracket" {"frames": [{"image", "exif", "nominal_exposure",
 // "start_exposure", "fitted_exposure", "reference", "registration"}], "exposure_source", "points", "channels":
-// {"R": {"emor", "terms", "cv_rmse", "rmse", "points", "ggcm_rmse_vs_emor", "ggcm_valid"}}, "inverse_crf_model"}.
+// {"R": {"emor", "terms", "cv_rmse", "rmse", "points", "ggcm_rmse_vs_emor", "ggcm_valid"}}, "inverse_crf_model"};
+// "inverse_crf_band" per channel as band_report.hpp writes it (scaled_fit_band.hpp's band).
 #include <filesystem>
 #include <string>
 #include <vector>
