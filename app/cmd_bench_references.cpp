@@ -18,6 +18,7 @@
 #include "bench_command.hpp"
 #include "bench_statistics.hpp"
 #include "crfcal/bracket_calibration.hpp"
+#include "crfcal/curve_band.hpp"
 #include "crfcal/chart_calibration.hpp"
 #include "crfcal/colorchecker.hpp"
 #include "crfcal/curve_comparison.hpp"
@@ -126,7 +127,24 @@ struct Method {
   // RGB mean shape error per case that has all three channels, split as `bench chart` splits the cameras: cameras
   // 1, 3, 5, … in name order are where choices are made, 2, 4, 6, … where they are reported.
   std::vector<double> rgb_choose, rgb_report;
+  // Methods with a band (crfcal's, scaled_fit_band.hpp): shape-band samples of the scored range and how many hold the
+  // truth (after its best common scale), and the band's median shape width there, per case and channel.
+  int band_samples = 0, band_hits = 0;
+  std::vector<double> band_width;
 };
+
+// The band's shape coverage of the truth over the scored range only (the RAW truth is itself a fit, valid where its
+// shots have grey patches): the band's covered range replaced by that range, then curve_band.hpp's scoreBand.
+void scoreBandOnRange(Method& method, const CurveBand& band, const std::vector<double>& phi,
+                      const std::vector<double>& truth, IntensityRange range) {
+  if (band.empty() || !(range.second > range.first)) return;
+  CurveBand on_range = band;
+  on_range.covered = range;
+  const BandScore score = scoreBand(on_range, phi, truth);
+  method.band_samples += score.inside;
+  method.band_hits += score.shape_hits;
+  method.band_width.push_back(score.median_shape_width_inside);
+}
 
 // The range every method is scored on, per channel: the truth's covered range ∩ the range of the usable patch values
 // of the 4 JPEG shots (what any method could have seen).
@@ -139,9 +157,10 @@ IntensityRange scoredRange(const SceneShots& scene, int c, IntensityRange truth_
 }
 
 // Runs one method on one scene (timed) and records its three channels' shape errors.
+// `bands`: filled by `calibrate` for the methods that have bands (one per channel), else null.
 template <typename Calibrate>
 void runMethod(Method& method, const Calibrate& calibrate, const ChartCalibrationResult& truth, const SceneShots& scene,
-               bool choose_camera, nlohmann::json& row, bool with_curves) {
+               bool choose_camera, nlohmann::json& row, bool with_curves, const std::vector<CurveBand>* bands = nullptr) {
   const auto wall = std::chrono::steady_clock::now();
   const std::clock_t cpu = std::clock();
   std::vector<std::vector<double>> curves;
@@ -158,7 +177,10 @@ void runMethod(Method& method, const Calibrate& calibrate, const ChartCalibratio
   double sum = 0;
   for (int c = 0; c < 3; ++c) {
     const auto& t = truth.channels[static_cast<size_t>(c)].fit;
-    const double e = shapeError(t.inverse, curves[static_cast<size_t>(c)], scoredRange(scene, c, t.covered_range));
+    const IntensityRange range = scoredRange(scene, c, t.covered_range);
+    const double e = shapeError(t.inverse, curves[static_cast<size_t>(c)], range);
+    if (bands && static_cast<size_t>(c) < bands->size())
+      scoreBandOnRange(method, (*bands)[static_cast<size_t>(c)], curves[static_cast<size_t>(c)], t.inverse, range);
     if (std::isfinite(e)) method.error[c].push_back(e);
     finite = finite && std::isfinite(e);
     sum += e;
@@ -170,7 +192,8 @@ void runMethod(Method& method, const Calibrate& calibrate, const ChartCalibratio
 }
 
 // `crfcal chart` (its default --reference all) on the scene's JPEG shots (patch sampling included in the time), with or without exposures.
-std::vector<std::vector<double>> chartCurves(const SceneShots& scene, bool exposures_given) {
+std::vector<std::vector<double>> chartCurves(const SceneShots& scene, bool exposures_given,
+                                             std::vector<CurveBand>& bands) {
   std::vector<ChartShot> shots;
   for (size_t j = 0; j < scene.frames.size(); ++j) {
     ChartShot shot;
@@ -184,7 +207,8 @@ std::vector<std::vector<double>> chartCurves(const SceneShots& scene, bool expos
   options.reference = chart::ReferenceSet::AllPatches;  // `crfcal chart`'s default
   const ChartCalibrationResult result = calibrateChart(shots, options);
   std::vector<std::vector<double>> curves;
-  for (const auto& c : result.channels) curves.push_back(c.fit.inverse);
+  bands.clear();
+  for (const auto& c : result.channels) curves.push_back(c.fit.inverse), bands.push_back(c.band);
   return curves;
 }
 
@@ -251,6 +275,16 @@ nlohmann::json printTable(const std::vector<Method>& methods, size_t scenes, con
                     {"cpu_seconds_median", median(m.cpu_seconds)}, {"cpu_seconds_max", cpu_max},
                     {"wall_seconds_median", median(m.wall_seconds)}};
   }
+  std::printf("\ncrfcal's 90 %% bands (scaled_fit_band.hpp) against the RAW truth over the scored range, pooled over "
+              "scenes and channels (target 85-95 %%; median shape width <= 0.02):\n");
+  std::printf("| method | shape band holds the truth | samples | median shape width |\n|---|---|---|---|\n");
+  for (const Method& m : methods) {
+    if (m.band_samples == 0) continue;
+    const double coverage = 100.0 * m.band_hits / m.band_samples;
+    std::printf("| %s | %.1f %% | %d | %.4f |\n", m.name.c_str(), coverage, m.band_samples, median(m.band_width));
+    json[m.name]["band_shape_coverage"] = coverage;
+    json[m.name]["band_median_shape_width"] = median(m.band_width);
+  }
   const double debevec = rgb["OpenCV Debevec"];
   std::printf("\n");
   for (const Method& m : methods) {
@@ -297,17 +331,19 @@ int runReferencesBench(const ReferencesBenchArgs& args) {
     for (const auto calibrator : {OpenCvCalibrator::Debevec, OpenCvCalibrator::Robertson})
       runMethod(methods[calibrator == OpenCvCalibrator::Debevec ? 0 : 1],
                 [&] { return opencvInverseResponse(scene.frames, scene.exposures, calibrator); }, truth, scene, choose, row, args.curves);
-    runMethod(methods[2], [&] { return chartCurves(scene, false); }, truth, scene, choose, row, args.curves);
-    runMethod(methods[3], [&] { return chartCurves(scene, true); }, truth, scene, choose, row, args.curves);
+    std::vector<CurveBand> bands;
+    runMethod(methods[2], [&] { return chartCurves(scene, false, bands); }, truth, scene, choose, row, args.curves, &bands);
+    runMethod(methods[3], [&] { return chartCurves(scene, true, bands); }, truth, scene, choose, row, args.curves, &bands);
     runMethod(methods[4], [&] {
       std::vector<BracketFrame> frames;
       for (size_t j = 0; j < scene.frames.size(); ++j)
         frames.push_back({scene.shots[j].name, scene.frames[j], scene.exposures[j]});
       const BracketCalibrationResult result = calibrateBracket(frames);
       std::vector<std::vector<double>> curves;
-      for (const auto& c : result.channels) curves.push_back(c.fit.inverse);
+      bands.clear();
+      for (const auto& c : result.channels) curves.push_back(c.fit.inverse), bands.push_back(c.band);
       return curves;
-    }, truth, scene, choose, row, args.curves);
+    }, truth, scene, choose, row, args.curves, &bands);
     if (args.curves)
       for (int c = 0; c < 3; ++c) {
         const ChartChannelResult& t = truth.channels[static_cast<size_t>(c)];

@@ -12,6 +12,7 @@
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/band_report.hpp"
 #include "crfcal/io/chart_io.hpp"
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/image_io.hpp"
@@ -233,10 +234,12 @@ io::CalibrationReport chartReport(const ChartArgs& args, const ChartCalibrationO
   report.warnings.insert(report.warnings.end(), result.warnings.begin(), result.warnings.end());
   nlohmann::json channels_json = nlohmann::json::object();
   nlohmann::json patches_json = nlohmann::json::array();
+  std::map<std::string, CurveBand> bands;
   for (const auto& c : result.channels) {
     const std::string name = channelName(c.channel);
     addScaledFitChannel(report, name, c.fit, c.ggcm);
     channels_json[name] = channelJson(c);
+    if (!c.band.empty()) bands[name] = c.band;
     for (const auto& p : c.patches)
       patches_json.push_back({{"channel", name},
                               {"shot", sampled.shots[static_cast<size_t>(p.shot)].name},
@@ -258,6 +261,10 @@ io::CalibrationReport chartReport(const ChartArgs& args, const ChartCalibrationO
     report.extra["chart"]["scenes"] = scenes;
   }
   report.extra["patch_residuals"] = patches_json;
+  if (!bands.empty())
+    report.extra["inverse_crf_band"] = io::curveBandsJson(
+        bands, "half-sample refits of the patches, K and exposures held (shape) + local-exponent bounds beyond the "
+               "covered range (scale); scaled_fit_band.hpp");
   return report;
 }
 
@@ -418,6 +425,13 @@ const CommandRegistration registration(
                          "Reference curve (report.json or table) to compare with: phi RMSE per channel over [0,1], "
                          "over the covered range, and there after the best common factor (as crfcal compare)")
           ->check(CLI::ExistingFile);
+      command.add_option("--band-replicates", args->options.band.replicates,
+                         "With --reference all: refits on halves of the patches per channel for the 90 % band of phi "
+                         "(even; 0: no band)")
+          ->capture_default_str()
+          ->check(CLI::Range(0, 200) & CLI::Validator([](std::string& v) {
+                    return std::stoi(v) % 2 ? std::string("must be even") : std::string();
+                  }, "EVEN"));
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runChart(*args); };
     });

@@ -238,6 +238,13 @@ TEST(Chart, AllPatchesRecoverAKnownCurveThroughAColourMatrix) {
     EXPECT_GT(c.fit.observations, 60) << channelName(c.channel);  // more than the greys' ≤ 48
     const auto [lo, hi] = c.fit.covered_range;
     EXPECT_LT(scaledRmse(exact, c.fit.inverse, lo, hi), 0.006) << channelName(c.channel) << " " << c.fit.summary();
+    // The band (scaled_fit_band.hpp): refits on halves of the patches, around the curve.
+    ASSERT_FALSE(c.band.empty()) << channelName(c.channel);
+    EXPECT_GE(c.band.replicates, 6) << channelName(c.channel);
+    for (int i = 0; i < kCurveSamples; i += 32) {
+      EXPECT_LE(c.band.lower[static_cast<size_t>(i)], c.fit.inverse[static_cast<size_t>(i)] + 1e-12);
+      EXPECT_GE(c.band.upper[static_cast<size_t>(i)], c.fit.inverse[static_cast<size_t>(i)] - 1e-12);
+    }
   }
 }
 
@@ -359,6 +366,9 @@ TEST(Chart, CommandWritesReportWithThreeChannelsAndGgcmModels) {
   std::ifstream in(dir / "out" / "report.json");
   const nlohmann::json json = nlohmann::json::parse(in);
   EXPECT_FALSE(json.at("patch_residuals").empty());
+  // --reference all (the default) writes a band per channel, as calibrate does.
+  for (const char* ch : {"R", "G", "B"})
+    EXPECT_EQ(json.at("inverse_crf_band").at(ch).at("upper").size(), size_t(kCurveSamples)) << ch;
   EXPECT_LT(json.at("truth").at("phi_error").at("G").at("rmse_covered_aligned").get<double>(), 0.02);
   // Errors are one line with the reason.
   const auto bad = test::run(test::crfcalBinary().string() + " chart" + images + " --raw '" +

@@ -21,6 +21,7 @@
 #include "chart_stages.hpp"
 #include "crfcal/emor.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/scaled_fit_band.hpp"
 
 namespace crfcal::detail {
 namespace {
@@ -29,6 +30,7 @@ struct ChannelData {
   std::vector<ScaledObservation> observations;  // the exact ones first, then the bounds
   size_t exact = 0;
   std::vector<std::pair<int, int>> origin;      // (shot, patch) of the exact ones
+  std::vector<int> cluster;                     // per observation: its (scene, patch), numbered 0 … (the band's unit)
   int rejected = 0;                             // patch samples not used as exact data
 };
 
@@ -68,8 +70,9 @@ ChannelData channelObservations(const std::vector<ChartShot>& shots, int c, cons
       }
       candidates.push_back(one);
     }
-  std::map<std::pair<int, int>, int> group;
+  std::map<std::pair<int, int>, int> group, cluster;
   std::vector<Candidate> bounds;
+  std::vector<int> bound_clusters;
   for (Candidate& one : candidates) {
     const bool neutral = chart::reference()[static_cast<size_t>(one.patch)].neutral;
     const std::pair<int, int> key{shots[static_cast<size_t>(one.shot)].scene, neutral ? -1 : one.patch};
@@ -78,16 +81,21 @@ ChannelData channelObservations(const std::vector<ChartShot>& shots, int c, cons
       continue;
     }
     one.observation.group = group.emplace(key, int(group.size())).first->second;
+    const int unit =
+        cluster.emplace(std::pair{shots[static_cast<size_t>(one.shot)].scene, one.patch}, int(cluster.size())).first->second;
     if (one.observation.kind == ScaledObservation::Kind::Exact) {
       data.observations.push_back(one.observation);
       data.origin.emplace_back(one.shot, one.patch);
+      data.cluster.push_back(unit);
     } else {
       bounds.push_back(one);
+      bound_clusters.push_back(unit);
       ++data.rejected;
     }
   }
   data.exact = data.observations.size();
   for (const Candidate& one : bounds) data.observations.push_back(one.observation);
+  data.cluster.insert(data.cluster.end(), bound_clusters.begin(), bound_clusters.end());
   return data;
 }
 
@@ -231,9 +239,10 @@ ChartCalibrationResult calibrateChartAllPatches(const std::vector<ChartShot>& sh
   for (size_t ci = 0; ci < options.channels.size(); ++ci) {
     const int c = options.channels[ci];
     ChannelData data = channelObservations(shots, c, t, options, excluded[ci]);
-    ChartChannelResult channel =
-        fitChartChannel(c, std::move(data.observations), data.exact, data.origin, fitted, result.warnings);
+    ChartChannelResult channel = fitChartChannel(c, data.observations, data.exact, data.origin, fitted, result.warnings);
     channel.rejected = data.rejected;
+    if (options.band.replicates > 0)
+      channel.band = scaledFitBand(data.observations, data.cluster, fitted.fit, channel.fit, options.band);
     result.channels.push_back(std::move(channel));
     if (progress) progress(0.5 + 0.5 * double(ci + 1) / double(options.channels.size()), channelName(c));
   }

@@ -387,6 +387,7 @@ std::string channelName(int channel) {
 
 void ChartCalibrationOptions::check() const {
   fit.check();
+  band.check();
   if (channels.empty()) throw InvalidInput("chart calibration: no channels");
   for (int c : channels)
     if (c < 0 || c > 2) throw InvalidInput("chart calibration: channel must be 0, 1 or 2");

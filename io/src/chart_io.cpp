@@ -155,6 +155,11 @@ void writeChartPlot(const fs::path& path, const ChartCalibrationResult& result, 
     series.push_back({grid, samples, colour, label, 2, false, true});
   }
   PlotOptions options;
+  for (const auto& channel : result.channels)
+    if (channel.band.lower.size() == grid.size())
+      options.bands.push_back({grid, channel.band.lower, channel.band.upper, colours[channel.channel],
+                               std::to_string(int(std::lround(100 * channel.band.level))) + " % band " +
+                                   channelName(channel.channel) + " (shaded)"});
   options.title = title;
   options.x_label = "intensity x";
   options.y_label = "phi(x)";

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "crfcal/colorchecker.hpp"
+#include "crfcal/curve_band.hpp"
 #include "crfcal/ggcm.hpp"
 #include "crfcal/response_model.hpp"
 
@@ -124,6 +125,10 @@ struct ChartCalibrationOptions {
   // ReferenceSet::AllPatches: weight of a grey sample relative to a coloured one. 1: on the five Middlebury cameras
   // the choice was made on, 3 (greys weighing as much as the 18 colours) was worse (docs/RESULTS.md#chart).
   double grey_weight = 1;
+  // ReferenceSet::AllPatches: the pointwise band of each channel's φ (scaled_fit_band.hpp), refits on halves of the
+  // patches (a patch of a scene is the resampling unit: its shots share its irradiance), K and exposures held.
+  // replicates = 0: no band. The other reference sets have too few patches to halve (the six greys): no band.
+  CurveBandOptions band;
   void check() const;
 };
 
@@ -142,6 +147,7 @@ struct ChartChannelResult {
   double ggcm_rmse = 0;  // RMSE between the GGCM curve and the EMoR curve (1024 samples)
   bool ggcm_valid = true;
   std::vector<ChartPatchResidual> patches;
+  CurveBand band;         // ReferenceSet::AllPatches with options.band.replicates > 0; empty otherwise
   int rejected = 0;       // patch samples not used as exact data (clipped / non-uniform; fit.censored of them
                           // entered as bounds)
 };
