@@ -105,6 +105,9 @@ struct SyntheticArgs {
 struct Curve {
   std::string name;
   std::vector<double> phi;  // 1024 samples
+  // The top of the x range the curve's own data measure (its table's "data cover x in [lo, hi]" header; 1 for the
+  // stand-ins, which are exact everywhere): above it the truth is itself an extrapolation.
+  double measured_top = 1;
 };
 
 struct Variant {
@@ -190,7 +193,10 @@ std::vector<Curve> loadCurves(const std::string& dir_arg, bool& stand_ins) {
     for (const auto& entry : fs::directory_iterator(dir))
       if (entry.path().extension() == ".csv") files.push_back(entry.path());
     std::sort(files.begin(), files.end());
-    for (const auto& f : files) curves.push_back({f.stem().string(), io::readCurveTable(f)});
+    for (const auto& f : files) {
+      const auto coverage = io::readCurveTableCoverage(f);
+      curves.push_back({f.stem().string(), io::readCurveTable(f), coverage ? coverage->second : 1.0});
+    }
   }
   if (curves.empty()) {  // stand-ins: γ curves and EMoR curves
     stand_ins = true;
@@ -219,9 +225,23 @@ double shapeRmse(const std::vector<double>& estimate, const std::vector<double>&
   return std::sqrt(sum / m);
 }
 
+// RMSE of φ as it is (φ(1) = 1 normalisation included) over the samples with x ≤ top (`below`) or x > top.
+double rangeRmse(const std::vector<double>& estimate, const std::vector<double>& truth, double top, bool below) {
+  const int n = static_cast<int>(truth.size());
+  double sum = 0;
+  int count = 0;
+  for (int i = 0; i < n; ++i) {
+    if ((double(i) / (n - 1) <= top) != below) continue;
+    sum += (estimate[i] - truth[i]) * (estimate[i] - truth[i]);
+    ++count;
+  }
+  return count > 0 ? std::sqrt(sum / count) : 0.0;
+}
+
 struct CaseResult {
   int curve = 0, kernel = 0, level = 0, image = 0;
-  std::map<std::string, double> rmse, seconds, shape;
+  // rmse over [0, 1]; measured / top: the same over the part of the truth its data measure and above it.
+  std::map<std::string, double> rmse, seconds, shape, measured, top;
   std::map<std::string, std::vector<double>> phi;
   std::map<std::string, std::string> chosen;
   double sigma_true = 0, sigma_est = 0;
@@ -348,8 +368,15 @@ SyntheticSetup loadSetup(const SyntheticArgs& args) {
 }
 
 // One variant's fit of one simulated pair, scored against the true curve.
-void fitVariant(const Variant& v, const SimulationResult& pair, const cv::Mat& kernel, const std::vector<double>& truth,
+void fitVariant(const Variant& v, const SimulationResult& pair, const cv::Mat& kernel, const Curve& true_curve,
                 CaseResult& out) {
+  const std::vector<double>& truth = true_curve.phi;
+  const auto score = [&](const std::vector<double>& phi) {
+    out.rmse[v.name] = curveRmse(phi, truth);
+    out.shape[v.name] = shapeRmse(phi, truth);
+    out.measured[v.name] = rangeRmse(phi, truth, true_curve.measured_top, true);
+    out.top[v.name] = rangeRmse(phi, truth, true_curve.measured_top, false);
+  };
   const auto t0 = std::chrono::steady_clock::now();
   CrfFitOptions options = variantOptions(v, pair.sharp);
   options.threads = 1;
@@ -358,8 +385,7 @@ void fitVariant(const Variant& v, const SimulationResult& pair, const cv::Mat& k
     const CrfFitResult fit = v.simex ? fitInverseCrfSimex(pair.sharp, pair.blurred, kernel, options, *v.simex)
                                      : fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
     out.seconds[v.name] = since(t0);
-    out.rmse[v.name] = curveRmse(fit.inverse_crf, truth);
-    out.shape[v.name] = shapeRmse(fit.inverse_crf, truth);
+    score(fit.inverse_crf);
     out.phi[v.name] = fit.inverse_crf;
     out.chosen[v.name] = fit.chosen;
     if (v.name == "default") out.sigma_est = fit.noise_sigma;
@@ -367,8 +393,7 @@ void fitVariant(const Variant& v, const SimulationResult& pair, const cv::Mat& k
     // a rejected pair (e.g. too few usable pixels): counted, scored as the gamma 2.2 curve
     out.seconds[v.name] = since(t0);
     const auto fallback = sampleInverse(GammaModel{2.2});
-    out.rmse[v.name] = curveRmse(fallback, truth);
-    out.shape[v.name] = shapeRmse(fallback, truth);
+    score(fallback);
     out.phi[v.name] = fallback;
     out.chosen[v.name] = "rejected";
   }
@@ -402,7 +427,7 @@ struct SyntheticRun {
       const SimulationResult pair = simulatePair(setup.images[cs.image], truth, setup.kernels[cs.kernel], sim);
       out.sigma_true = std::sqrt(sim.noise_variance);
       for (const Variant& v : setup.variants)
-        fitVariant(v, pair, setup.kernels[cs.kernel], setup.curves[cs.curve].phi, out);
+        fitVariant(v, pair, setup.kernels[cs.kernel], setup.curves[cs.curve], out);
     } catch (const std::exception& e) {
       std::lock_guard lock(progress_mutex);
       failure = e.what();
@@ -449,30 +474,34 @@ void printSyntheticHeader(const SyntheticArgs& args, const SyntheticSetup& setup
               std::sqrt(*std::min_element(kNoiseVariances, kNoiseVariances + 3)) * to_levels,
               std::sqrt(*std::max_element(kNoiseVariances, kNoiseVariances + 3)) * to_levels);
   std::printf("error: RMSE of phi over 1024 points of [0,1]; wall time %.1f s on %d thread(s)\n\n", wall, args.threads);
-  std::printf("%-20s %9s %9s %9s %9s %9s %10s %9s\n", "method", "noise var", "mean", "median", "max", "seed mean", "s/case",
-              "shape");
+  std::printf("%-20s %9s %9s %9s %9s %9s %10s %9s %9s %9s\n", "method", "noise var", "mean", "median", "max", "seed mean",
+              "s/case", "shape", "measured", "top");
 }
 
 // One variant's row per noise level (printed), returned as the JSON "levels" array.
 nlohmann::json printVariantRows(const Variant& v, const std::vector<CaseResult>& results) {
   nlohmann::json levels = nlohmann::json::array();
   for (int level = 0; level < 3; ++level) {
-    std::vector<double> errs, shapes;
+    std::vector<double> errs, shapes, measured, top;
     double secs = 0;
     for (const auto& r : results)
       if (r.level == level && r.rmse.count(v.name)) {
         errs.push_back(r.rmse.at(v.name));
         shapes.push_back(r.shape.at(v.name));
+        measured.push_back(r.measured.at(v.name));
+        top.push_back(r.top.at(v.name));
         secs += r.seconds.at(v.name);
       }
     if (errs.empty()) continue;
     const Stats s = stats(errs, secs);
-    const double shape = std::accumulate(shapes.begin(), shapes.end(), 0.0) / shapes.size();
-    std::printf("%-20s %9.3f %9.4f %9.4f %9.4f %9.4f %10.3f %9.4f\n", v.name.c_str(), kNoiseVariances[level], s.mean,
-                s.median, s.max, kSeedMean[level], s.seconds, shape);
+    const auto average = [](const std::vector<double>& x) { return std::accumulate(x.begin(), x.end(), 0.0) / x.size(); };
+    const double shape = average(shapes);
+    std::printf("%-20s %9.3f %9.4f %9.4f %9.4f %9.4f %10.3f %9.4f %9.4f %9.4f\n", v.name.c_str(), kNoiseVariances[level],
+                s.mean, s.median, s.max, kSeedMean[level], s.seconds, shape, average(measured), average(top));
     levels.push_back({{"noise_var", kNoiseVariances[level]}, {"mean_rmse", s.mean}, {"median_rmse", s.median},
                       {"max_rmse", s.max}, {"seconds_per_case", s.seconds}, {"cases", s.n},
-                      {"mean_shape_rmse", shape}});
+                      {"mean_shape_rmse", shape}, {"mean_measured_rmse", average(measured)},
+                      {"mean_top_rmse", average(top)}});
   }
   return levels;
 }
@@ -506,11 +535,14 @@ nlohmann::json printSyntheticTable(const SyntheticArgs& args, const SyntheticSet
   for (const auto& r : results)
     json["per_case"].push_back({{"curve", setup.curves[r.curve].name}, {"kernel", r.kernel + 1}, {"image", r.image + 1},
                                 {"noise_var", kNoiseVariances[r.level]}, {"rmse", r.rmse}, {"shape_rmse", r.shape},
+                                {"measured_rmse", r.measured}, {"top_rmse", r.top},
                                 {"chosen", r.chosen}});
   std::printf("%-20s %9s %9.4f   (best GGCM fit of each true curve: the lower bound for GGCM fits)\n", "ggcm floor",
               "-", floor_mean);
   std::printf("shape: mean RMSE over x <= %.1f after the best common factor (phi's shape without the phi(1) = 1 "
               "normalisation)\n", kShapeLimit);
+  std::printf("measured / top: mean RMSE of phi as it is over the x the true curve's own data measure (its table's "
+              "'data cover' top) / above it, where the truth is itself extrapolated\n");
   return json;
 }
 
