@@ -135,7 +135,15 @@ cv::Mat renderPlot(const std::vector<PlotSeries>& series, const PlotOptions& opt
   cv::rectangle(canvas, area, black, 1);
   cv::putText(canvas, options.x_label, {area.x + area.width / 2 - 30, canvas.rows - 15}, font, 0.55, black, 1, cv::LINE_AA);
   cv::putText(canvas, options.y_label, {8, top - 16}, font, 0.5, black, 1, cv::LINE_AA);
-  if (!options.title.empty()) cv::putText(canvas, options.title, {left, 28}, font, 0.65, black, 1, cv::LINE_AA);
+  if (!options.title.empty()) {
+    // A long title (a camera's name, a file) starts further left and then shrinks until it fits the picture.
+    double scale = 0.65;
+    int baseline = 0, x = left;
+    const int width = cv::getTextSize(options.title, font, scale, 1, &baseline).width;
+    if (x + width > canvas.cols - 8) x = 8;
+    if (x + width > canvas.cols - 8) scale *= double(canvas.cols - 16) / width;
+    cv::putText(canvas, options.title, {x, 28}, font, scale, black, 1, cv::LINE_AA);
+  }
 
   cv::Mat plot = canvas(area);
   const cv::Point offset(area.x, area.y);
