@@ -195,10 +195,12 @@ Bytes withExifOrientation(const Bytes& jpeg, int orientation) {
   Exiv2::Blob blob;
   Exiv2::ExifParser::encode(blob, Exiv2::littleEndian, exif);
   const std::size_t length = blob.size() + 6 + 2;
-  Bytes out{0xFF, 0xD8, 0xFF, 0xE1, static_cast<unsigned char>(length >> 8), static_cast<unsigned char>(length & 0xFF),
-            'E', 'x', 'i', 'f', 0, 0};
-  out.insert(out.end(), blob.begin(), blob.end());
-  out.insert(out.end(), jpeg.begin() + 2, jpeg.end());
+  const unsigned char head[] = {0xFF, 0xD8, 0xFF, 0xE1, static_cast<unsigned char>(length >> 8),
+                                static_cast<unsigned char>(length & 0xFF), 'E', 'x', 'i', 'f', 0, 0};
+  Bytes out(sizeof head + blob.size() + jpeg.size() - 2);
+  std::memcpy(out.data(), head, sizeof head);
+  std::memcpy(out.data() + sizeof head, blob.data(), blob.size());
+  std::memcpy(out.data() + sizeof head + blob.size(), jpeg.data() + 2, jpeg.size() - 2);
   return out;
 }
 
@@ -295,8 +297,9 @@ TEST(ImageCodecs, TiffAndPnmDecodeAsOpenCVDoes) {
     if (CV_MAT_DEPTH(type) == CV_32F) {  // OpenCV reads a float TIFF only unchanged (libtiff's RGBA refuses floats)
       EXPECT_TRUE(identical(io::decodeImage(tiff, io::ImageReadMode::unchanged, "float tiff"),
                             cv::imdecode(tiff, cv::IMREAD_UNCHANGED)));
-      if (type == CV_32FC1)  // (OpenCV writes CV_32FC3 as SGI LogLuv, lossy)
+      if (type == CV_32FC1) {  // (OpenCV writes CV_32FC3 as SGI LogLuv, lossy)
         EXPECT_TRUE(identical(io::decodeImage(tiff, io::ImageReadMode::unchanged, "float tiff"), image));
+      }
       continue;
     }
     expectSameAsOpenCV(tiff, "tiff type " + std::to_string(type));

@@ -59,15 +59,15 @@ Format formatOf(std::span<const unsigned char> b) {
   };
   if (starts({0xFF, 0xD8, 0xFF})) return Format::jpeg;
   if (starts({0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'})) return Format::png;
-  if (starts({'I', 'I', 42, 0}) || starts({'M', 'M', 0, 42})) return Format::tiff;
+  if (starts({'I', 'I', 42, 0}) || starts({'M', 'M', 0, 42}) || starts({'I', 'I', 43, 0}) || starts({'M', 'M', 0, 43}))
+    return Format::tiff;  // classic or BigTIFF
   if (b.size() >= 3 && b[0] == 'P' && (b[1] == '5' || b[1] == '6') && std::isspace(b[2])) return Format::pnm;
   // Formats OpenCV reads and crfcal does not: BMP, other PNM/PFM/PAM, WebP, OpenEXR, JPEG 2000, Radiance HDR, Sun
-  // raster, GIF, TIFF BigTIFF.
+  // raster, GIF.
   if (starts({'B', 'M'}) || (b.size() >= 2 && b[0] == 'P' && std::string("1234fF7").find(static_cast<char>(b[1])) != std::string::npos) ||
       (starts({'R', 'I', 'F', 'F'}) && b.size() >= 12 && std::equal(b.begin() + 8, b.begin() + 12, "WEBP")) ||
       starts({0x76, 0x2F, 0x31, 0x01}) || starts({0, 0, 0, 0x0C, 'j', 'P', ' ', ' '}) || starts({0xFF, 0x4F, 0xFF, 0x51}) ||
-      starts({'#', '?'}) || starts({0x59, 0xA6, 0x6A, 0x95}) || starts({'G', 'I', 'F', '8'}) ||
-      starts({'I', 'I', 43, 0}) || starts({'M', 'M', 0, 43}))
+      starts({'#', '?'}) || starts({0x59, 0xA6, 0x6A, 0x95}) || starts({'G', 'I', 'F', '8'}))
     return Format::other_image;
   return Format::unknown;
 }
