@@ -10,9 +10,9 @@
 #include <sstream>
 
 #include <nlohmann/json.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "crfcal/error.hpp"
+#include "crfcal/io/image_io.hpp"
 
 namespace crfcal::io {
 namespace fs = std::filesystem;
@@ -26,8 +26,7 @@ fs::path defaultSharedData(const std::string& given) {
 namespace {
 
 cv::Mat readRgb8(const fs::path& path) {
-  cv::Mat image = cv::imread(path.string(), cv::IMREAD_COLOR);
-  if (image.empty()) throw Error("cannot read image", path.string());
+  cv::Mat image = readColorImage(path);
   if (image.cols != 390 || image.rows != 260) throw Error("expected a 390x260 rectified chart", path.string());
   return image;  // BGR
 }

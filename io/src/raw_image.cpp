@@ -5,10 +5,10 @@
 #include <memory>
 
 #include <libraw/libraw.h>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "crfcal/error.hpp"
+#include "crfcal/io/image_codecs.hpp"
 
 namespace crfcal::io {
 namespace fs = std::filesystem;
@@ -133,8 +133,11 @@ cv::Mat readRawThumbnail(const fs::path& path) {
   std::unique_ptr<libraw_processed_image_t, void (*)(libraw_processed_image_t*)> guard(thumb, LibRaw::dcraw_clear_mem);
   cv::Mat image;
   if (thumb->type == LIBRAW_IMAGE_JPEG) {
-    const cv::Mat bytes(1, static_cast<int>(thumb->data_size), CV_8U, thumb->data);
-    image = cv::imdecode(bytes, cv::IMREAD_COLOR);
+    try {
+      image = decodeImage({thumb->data, thumb->data_size}, ImageReadMode::color, path.string());
+    } catch (const Error&) {
+      image.release();  // refused below with the preview's own message
+    }
   } else if (thumb->type == LIBRAW_IMAGE_BITMAP && thumb->bits == 8 && (thumb->colors == 3 || thumb->colors == 1)) {
     const cv::Mat view(thumb->height, thumb->width, thumb->colors == 3 ? CV_8UC3 : CV_8UC1, thumb->data);
     if (thumb->colors == 3) cv::cvtColor(view, image, cv::COLOR_RGB2BGR);
