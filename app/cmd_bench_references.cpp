@@ -299,15 +299,21 @@ int runReferencesBench(const ReferencesBenchArgs& args) {
                 [&] { return opencvInverseResponse(scene.frames, scene.exposures, calibrator); }, truth, scene, choose, row, args.curves);
     runMethod(methods[2], [&] { return chartCurves(scene, false); }, truth, scene, choose, row, args.curves);
     runMethod(methods[3], [&] { return chartCurves(scene, true); }, truth, scene, choose, row, args.curves);
+    nlohmann::json bracket_fit = nlohmann::json::object();  // per channel: the data's covered range, points, K
     runMethod(methods[4], [&] {
       std::vector<BracketFrame> frames;
       for (size_t j = 0; j < scene.frames.size(); ++j)
         frames.push_back({scene.shots[j].name, scene.frames[j], scene.exposures[j]});
       const BracketCalibrationResult result = calibrateBracket(frames);
       std::vector<std::vector<double>> curves;
-      for (const auto& c : result.channels) curves.push_back(c.fit.inverse);
+      for (const auto& c : result.channels) {
+        curves.push_back(c.fit.inverse);
+        bracket_fit[channelName(c.channel)] = {{"covered_range", {c.fit.covered_range.first, c.fit.covered_range.second}},
+                                               {"points", c.points}, {"terms", c.fit.terms}};
+      }
       return curves;
     }, truth, scene, choose, row, args.curves);
+    if (!bracket_fit.empty()) row["crfcal bracket"]["fit"] = bracket_fit;
     if (args.curves)
       for (int c = 0; c < 3; ++c) {
         const ChartChannelResult& t = truth.channels[static_cast<size_t>(c)];

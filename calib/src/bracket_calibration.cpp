@@ -31,6 +31,7 @@ void BracketSamplingOptions::check() const {
   if (candidates < points) throw InvalidInput("bracket sampling: candidates must be ≥ points", ErrorSubject::options);
   if (!(low >= 0 && low < high && high <= 1))
     throw InvalidInput("bracket sampling: need 0 ≤ low < high ≤ 1", ErrorSubject::options);
+  if (!(clip > low && clip <= 1)) throw InvalidInput("bracket sampling: need low < clip ≤ 1", ErrorSubject::options);
   if (margin < 0) throw InvalidInput("bracket sampling: margin must be ≥ 0", ErrorSubject::options);
   if (!(max_saturation > 0 && max_saturation <= 1))
     throw InvalidInput("bracket sampling: max_saturation must be in (0, 1]", ErrorSubject::options);
@@ -265,7 +266,17 @@ struct Samples {
   std::vector<cv::Point> positions;
   std::vector<std::vector<cv::Vec3f>> values;  // [point][frame]
   std::vector<float> saturation;               // [point]: pointSaturation
+  std::vector<int> brightness_class;           // [point]: its class of scene brightness (0 … classes−1)
+  std::vector<std::vector<cv::Vec3f>> window_max;  // [point][frame]: the largest pixel of each plane in its window
 };
+
+// Whether plane `plane` of point p in frame j is an exact observation: above the noise floor, and no pixel of the
+// window clipped (a mean over a window with clipped pixels is below the mean the curve predicts — censored).
+bool isObservation(const Samples& samples, std::size_t p, std::size_t j, int plane, const BracketSamplingOptions& options) {
+  const double z = samples.values[p][j][plane];
+  if (z < options.low) return false;
+  return samples.window_max[p][j][plane] < options.clip;
+}
 
 // A point's colour saturation, (max − min)/max over its planes, in the frame where its brightest plane is highest
 // while below `high` (the least noisy unclipped view of its colour; a dark view's noise would make any colour look
@@ -286,10 +297,13 @@ float pointSaturation(const std::vector<cv::Vec3f>& frames, double high) {
 Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions& options) {
   const cv::Size size = aligned.images.front().size();
   const cv::Size window(options.window, options.window);
-  std::vector<cv::Mat> means, grey_means, deviations;  // per frame: local mean of the planes, of the grey, its std
+  std::vector<cv::Mat> means, maxima, grey_means, deviations;  // per frame: local mean and max of the planes, …
+  const cv::Mat box = cv::getStructuringElement(cv::MORPH_RECT, window);
   for (const cv::Mat& image : aligned.images) {
-    cv::Mat mean, grey_mean, grey_sq;
+    cv::Mat mean, maximum, grey_mean, grey_sq;
     cv::boxFilter(image, mean, CV_32F, window, {-1, -1}, true, cv::BORDER_REFLECT);
+    cv::dilate(image, maximum, box, {-1, -1}, 1, cv::BORDER_REFLECT);
+    maxima.push_back(maximum);
     const cv::Mat grey = greyOf(image);
     cv::boxFilter(grey, grey_mean, CV_32F, window, {-1, -1}, true, cv::BORDER_REFLECT);
     cv::boxFilter(grey.mul(grey), grey_sq, CV_32F, window, {-1, -1}, true, cv::BORDER_REFLECT);
@@ -337,6 +351,7 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
   }
   std::mt19937_64 rng(options.seed);
   std::vector<cv::Point> chosen;
+  std::vector<int> chosen_class;
   int remaining_bins = 0;
   for (const auto& bin : bins) remaining_bins += !bin.empty();
   int budget = options.points;
@@ -351,19 +366,22 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
     std::shuffle(pool.begin(), pool.end(), rng);
     const int take = std::min<int>(quota, int(pool.size()));
     chosen.insert(chosen.end(), pool.begin(), pool.begin() + take);
+    chosen_class.insert(chosen_class.end(), std::size_t(take), int(&bin - bins.data()));
     budget -= take;
   }
   Samples samples;
+  samples.brightness_class = chosen_class;
+  const auto at = [](const cv::Mat& m, cv::Point p) {
+    if (m.channels() == 1) return cv::Vec3f::all(m.at<float>(p));
+    return m.at<cv::Vec3f>(p);
+  };
   for (const cv::Point& p : chosen) {
-    std::vector<cv::Vec3f> v;
-    for (const cv::Mat& m : means) {
-      if (m.channels() == 1) {
-        const float g = m.at<float>(p);
-        v.emplace_back(g, g, g);
-      } else {
-        v.push_back(m.at<cv::Vec3f>(p));
-      }
+    std::vector<cv::Vec3f> v, top;
+    for (std::size_t j = 0; j < means.size(); ++j) {
+      v.push_back(at(means[j], p));
+      top.push_back(at(maxima[j], p));
     }
+    samples.window_max.push_back(std::move(top));
     samples.positions.push_back(p);
     samples.saturation.push_back(pointSaturation(v, options.high));
     samples.values.push_back(std::move(v));
@@ -387,13 +405,17 @@ std::vector<ScaledObservation> channelObservations(const Samples& samples, int p
     if (samples.saturation[p] > options.max_saturation) continue;  // vivid: rendered beyond the channel's curve
     std::vector<ScaledObservation> own;
     for (std::size_t j = 0; j < exposure.size(); ++j) {
+      if (!isObservation(samples, p, j, plane, options)) continue;
       const double z = samples.values[p][j][plane];
-      if (z < options.low || z >= options.high) continue;
       ScaledObservation o;
       o.x = z;
       o.y = exposure[j];
       o.group = points;
-      o.fold = points % 2;
+      // Folds by brightness class, not by point: the points of one flat region (a wall, a chart patch) are near
+      // copies of each other, so holding out every other point tests the curve on the intensities it was fitted
+      // on and K follows the region's own misfit; holding out every other brightness class asks the curve for
+      // values between those it saw (docs/RESULTS.md#bracket, issue 21's fourth round).
+      o.fold = samples.brightness_class[p] % 2;
       o.weight = observationWeight(z, exposure[j], options.high);
       own.push_back(o);
     }
@@ -420,14 +442,13 @@ void refineExposures(const Samples& samples, const std::vector<BracketChannelRes
         if (samples.saturation[p] > options.max_saturation) continue;
         int usable = 0;
         for (std::size_t k = 0; k < exposure.size(); ++k) {
-          const double z = samples.values[p][k][planes[ci]];
-          usable += z >= options.low && z < options.high;
+          usable += isObservation(samples, p, k, planes[ci], options);
         }
         if (usable < 2) continue;  // the same points, in the same order, as channelObservations
         const double z = samples.values[p][j][planes[ci]];
         const double s = fit.scales[static_cast<std::size_t>(group)];
         ++group;
-        if (z < options.low || z >= options.high || !(s > 0)) continue;
+        if (!isObservation(samples, p, j, planes[ci], options) || !(s > 0)) continue;
         estimates.push_back(s * interpolateSamples(fit.inverse, z));
       }
     }
