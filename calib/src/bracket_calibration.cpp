@@ -31,7 +31,9 @@ void BracketSamplingOptions::check() const {
   if (candidates < points) throw InvalidInput("bracket sampling: candidates must be ≥ points", ErrorSubject::options);
   if (!(low >= 0 && low < high && high <= 1))
     throw InvalidInput("bracket sampling: need 0 ≤ low < high ≤ 1", ErrorSubject::options);
-  if (!(clip > low && clip <= 1)) throw InvalidInput("bracket sampling: need low < clip ≤ 1", ErrorSubject::options);
+  if (!(top > low && top <= 1)) throw InvalidInput("bracket sampling: need low < top ≤ 1", ErrorSubject::options);
+  if (!(plateau_floor > low && plateau_floor < top))
+    throw InvalidInput("bracket sampling: need low < plateau_floor < top", ErrorSubject::options);
   if (margin < 0) throw InvalidInput("bracket sampling: margin must be ≥ 0", ErrorSubject::options);
   if (!(max_saturation > 0 && max_saturation <= 1))
     throw InvalidInput("bracket sampling: max_saturation must be in (0, 1]", ErrorSubject::options);
@@ -267,15 +269,43 @@ struct Samples {
   std::vector<std::vector<cv::Vec3f>> values;  // [point][frame]
   std::vector<float> saturation;               // [point]: pointSaturation
   std::vector<int> brightness_class;           // [point]: its class of scene brightness (0 … classes−1)
-  std::vector<std::vector<cv::Vec3f>> window_max;  // [point][frame]: the largest pixel of each plane in its window
+  cv::Vec3f limit{1, 1, 1};                    // per plane: a value at or above this is clipped (clippingLimits)
 };
 
-// Whether plane `plane` of point p in frame j is an exact observation: above the noise floor, and no pixel of the
-// window clipped (a mean over a window with clipped pixels is below the mean the curve predicts — censored).
+// Whether plane `plane` of point p in frame j is an exact observation: above the noise floor, below the plane's
+// clipping limit.
 bool isObservation(const Samples& samples, std::size_t p, std::size_t j, int plane, const BracketSamplingOptions& options) {
-  const double z = samples.values[p][j][plane];
-  if (z < options.low) return false;
-  return samples.window_max[p][j][plane] < options.clip;
+  const float z = samples.values[p][j][plane];
+  return z >= options.low && z < samples.limit[plane];
+}
+
+// Each plane's clipping limit, measured where the frames show it: a channel is clipped where its value stops rising
+// with the exposure. For every point and pair of frames neighbouring in exposure (the brighter ≥ 5 % more exposed),
+// a value above `plateau_floor` that the brighter frame does not exceed by more than 0.5 % is on the plateau; with
+// enough such values (≥ max(5, 1 % of the points)) the limit is their lowest decile minus 0.01, never above `top`.
+// Cameras differ: many JPEGs clip at code 255, some (the Nikon E995 window set) at ≈ 0.97–0.98, so a fixed mean
+// limit either drops the unclipped top of a channel (blue of a white patch at 0.97–0.99 on the Middlebury cameras)
+// or lets a lower plateau in (docs/RESULTS.md#bracket, issue 21's fourth round).
+void clippingLimits(Samples& samples, const std::vector<double>& exposure, const BracketSamplingOptions& options) {
+  std::vector<std::size_t> order(exposure.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return exposure[a] < exposure[b]; });
+  const std::size_t enough = std::max<std::size_t>(5, samples.values.size() / 100);
+  for (int plane = 0; plane < 3; ++plane) {
+    std::vector<float> plateau;
+    for (const auto& values : samples.values)
+      for (std::size_t k = 1; k < order.size(); ++k) {
+        if (!(exposure[order[k]] >= 1.05 * exposure[order[k - 1]])) continue;
+        const float dark = values[order[k - 1]][plane], bright = values[order[k]][plane];
+        if (dark > options.plateau_floor && bright <= dark * 1.005f) plateau.push_back(dark);
+      }
+    float limit = float(options.top);
+    if (plateau.size() >= enough) {
+      std::nth_element(plateau.begin(), plateau.begin() + long(plateau.size() / 10), plateau.end());
+      limit = std::min(limit, plateau[plateau.size() / 10] - 0.01f);
+    }
+    samples.limit[plane] = std::max(limit, float(options.plateau_floor));
+  }
 }
 
 // A point's colour saturation, (max − min)/max over its planes, in the frame where its brightest plane is highest
@@ -297,13 +327,10 @@ float pointSaturation(const std::vector<cv::Vec3f>& frames, double high) {
 Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions& options) {
   const cv::Size size = aligned.images.front().size();
   const cv::Size window(options.window, options.window);
-  std::vector<cv::Mat> means, maxima, grey_means, deviations;  // per frame: local mean and max of the planes, …
-  const cv::Mat box = cv::getStructuringElement(cv::MORPH_RECT, window);
+  std::vector<cv::Mat> means, grey_means, deviations;  // per frame: local mean of the planes, of the grey, its std
   for (const cv::Mat& image : aligned.images) {
-    cv::Mat mean, maximum, grey_mean, grey_sq;
+    cv::Mat mean, grey_mean, grey_sq;
     cv::boxFilter(image, mean, CV_32F, window, {-1, -1}, true, cv::BORDER_REFLECT);
-    cv::dilate(image, maximum, box, {-1, -1}, 1, cv::BORDER_REFLECT);
-    maxima.push_back(maximum);
     const cv::Mat grey = greyOf(image);
     cv::boxFilter(grey, grey_mean, CV_32F, window, {-1, -1}, true, cv::BORDER_REFLECT);
     cv::boxFilter(grey.mul(grey), grey_sq, CV_32F, window, {-1, -1}, true, cv::BORDER_REFLECT);
@@ -376,12 +403,8 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
     return m.at<cv::Vec3f>(p);
   };
   for (const cv::Point& p : chosen) {
-    std::vector<cv::Vec3f> v, top;
-    for (std::size_t j = 0; j < means.size(); ++j) {
-      v.push_back(at(means[j], p));
-      top.push_back(at(maxima[j], p));
-    }
-    samples.window_max.push_back(std::move(top));
+    std::vector<cv::Vec3f> v;
+    for (const cv::Mat& m : means) v.push_back(at(m, p));
     samples.positions.push_back(p);
     samples.saturation.push_back(pointSaturation(v, options.high));
     samples.values.push_back(std::move(v));
@@ -416,6 +439,7 @@ std::vector<ScaledObservation> channelObservations(const Samples& samples, int p
       // on and K follows the region's own misfit; holding out every other brightness class asks the curve for
       // values between those it saw (docs/RESULTS.md#bracket, issue 21's fourth round).
       o.fold = samples.brightness_class[p] % 2;
+      if (std::getenv("BG_PTFOLD")) o.fold = points % 2;  // DEBUG
       o.weight = observationWeight(z, exposure[j], options.high);
       own.push_back(o);
     }
@@ -542,7 +566,8 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
   }
 
   if (progress) progress("sample", 0, "");
-  const Samples samples = samplePoints(aligned, options.sampling);
+  Samples samples = samplePoints(aligned, options.sampling);
+  clippingLimits(samples, start, options.sampling);
   result.points = int(samples.positions.size());
   for (const cv::Point& p : samples.positions) result.point_positions.emplace_back(int(p.x / scale), int(p.y / scale));
 

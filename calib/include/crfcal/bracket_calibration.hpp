@@ -48,14 +48,15 @@ struct BracketSamplingOptions {
   double flat_fraction = 0.3;    // of each brightness class, only the flattest fraction of candidates is drawn
   int candidates = 60000;        // candidate positions on a regular grid of the reference frame
   double low = 0.02;             // a channel value below this (unit scale) is the noise floor: not data
-  // A channel of a point is clipped in a frame when a pixel of its window reaches this (unit scale; 8-bit: code
-  // 255): the window's mean is then censored. Judged on the pixels, not on the mean: a mean-based limit (0.97 before
-  // issue 21's fourth round) also dropped the unclipped top of the channel that renders brightest (camera JPEG
-  // blue of a white patch), so its shoulder was extrapolated (docs/RESULTS.md#bracket).
-  double clip = 0.998;
+  // A channel value at or above this is clipped, not data — unless the frames show the channel's clipping plateau
+  // lower (values that stop rising with the exposure; the limit is then just below it): cameras clip at different
+  // codes. 0.97 before issue 21's fourth round (= `high`), which dropped the unclipped top of the channel that
+  // renders brightest (JPEG blue of a white patch) so its shoulder was extrapolated (docs/RESULTS.md#bracket).
+  double top = 0.99;
+  double plateau_floor = 0.9;    // values above this that a brighter frame does not exceed are the plateau
   // A grey (channel mean) at or above this is too near clipping to judge a candidate's flatness or a point's colour
-  // there; observations are also weighted down over the last 0.1 below it (a channel about to clip bends).
-  double high = 0.99;
+  // there; observations are weighted down over the last 0.1 below it (a channel about to clip bends).
+  double high = 0.97;
   // A scene point is data only while its colour is at most this saturated, (max − min)/max over R, G, B in its
   // brightest unclipped frame: cameras render vivid colours through gamut mapping / saturation that no per-channel
   // curve describes. 1: every colour. Chosen on the "choose" cameras of `crfcal bench references`
