@@ -439,7 +439,6 @@ std::vector<ScaledObservation> channelObservations(const Samples& samples, int p
       // on and K follows the region's own misfit; holding out every other brightness class asks the curve for
       // values between those it saw (docs/RESULTS.md#bracket, issue 21's fourth round).
       o.fold = samples.brightness_class[p] % 2;
-      if (std::getenv("BG_PTFOLD")) o.fold = points % 2;  // DEBUG
       o.weight = observationWeight(z, exposure[j], options.high);
       own.push_back(o);
     }

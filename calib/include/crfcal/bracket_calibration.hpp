@@ -19,8 +19,8 @@
 // that path does not settle); a frame that does not register is refused (not the same scene).
 // Samples. Scene points on flat areas (the largest local standard deviation over the frames is among the lowest of
 // their brightness class), spread over the brightness range; a point's value is the local mean of each channel;
-// values near 0 (noise floor) or from a window with a clipped pixel are not data, nor are points of a vivid colour
-// (max_saturation). Cross-validation folds are alternate brightness classes (a flat region's points are near copies).
+// values near 0 (noise floor) or at the channel's clipping limit (measured from the frames where they show a
+// plateau) are not data, nor are points of a vivid colour (max_saturation). Cross-validation folds are alternate brightness classes (a flat region's points are near copies).
 #include <cstdint>
 #include <functional>
 #include <string>
