@@ -334,6 +334,7 @@ int runReferencesBench(const ReferencesBenchArgs& args) {
     std::vector<CurveBand> bands;
     runMethod(methods[2], [&] { return chartCurves(scene, false, bands); }, truth, scene, choose, row, args.curves, &bands);
     runMethod(methods[3], [&] { return chartCurves(scene, true, bands); }, truth, scene, choose, row, args.curves, &bands);
+    nlohmann::json bracket_fit = nlohmann::json::object();  // per channel: the data's covered range, points, K
     runMethod(methods[4], [&] {
       std::vector<BracketFrame> frames;
       for (size_t j = 0; j < scene.frames.size(); ++j)
@@ -341,9 +342,15 @@ int runReferencesBench(const ReferencesBenchArgs& args) {
       const BracketCalibrationResult result = calibrateBracket(frames);
       std::vector<std::vector<double>> curves;
       bands.clear();
-      for (const auto& c : result.channels) curves.push_back(c.fit.inverse), bands.push_back(c.band);
+      for (const auto& c : result.channels) {
+        curves.push_back(c.fit.inverse);
+        bands.push_back(c.band);
+        bracket_fit[channelName(c.channel)] = {{"covered_range", {c.fit.covered_range.first, c.fit.covered_range.second}},
+                                               {"points", c.points}, {"terms", c.fit.terms}};
+      }
       return curves;
     }, truth, scene, choose, row, args.curves, &bands);
+    if (!bracket_fit.empty()) row["crfcal bracket"]["fit"] = bracket_fit;
     if (args.curves)
       for (int c = 0; c < 3; ++c) {
         const ChartChannelResult& t = truth.channels[static_cast<size_t>(c)];

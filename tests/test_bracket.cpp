@@ -190,6 +190,37 @@ TEST(Bracket, SaturatedColoursRenderedAfterTheCurveDoNotBendIt) {
   EXPECT_THROW(bad.check(), InvalidInput);
 }
 
+TEST(Bracket, AChannelsClippingLimitIsWhereItsValuesStopRising) {
+  // A camera whose JPEG white is code 240, not 255: a fixed limit near 1 would take the plateau at 0.94 as data and
+  // bend the curve's top; the limit measured from the frames (values that a brighter frame does not exceed) drops
+  // below it. A camera that clips at 255 keeps its unclipped top above the old fixed limit 0.97.
+  SyntheticBracket b = syntheticBracket(0);
+  BracketCalibrationOptions options;
+  options.register_frames = false;
+  const BracketCalibrationResult full = calibrateBracket(framesOf(b, true), options);
+  for (const auto& c : full.channels) EXPECT_GT(c.fit.covered_range.second, 0.97) << channelName(c.channel);
+  for (cv::Mat& frame : b.frames) cv::min(frame, cv::Scalar::all(240), frame);
+  BracketCalibrationOptions no_plateau = options;
+  no_plateau.sampling.plateau_floor = 0.985;  // above the plateau: none is found, the fixed top (0.99) decides
+  const BracketCalibrationResult measured = calibrateBracket(framesOf(b, true), options);
+  const BracketCalibrationResult fixed = calibrateBracket(framesOf(b, true), no_plateau);
+  double sum_measured = 0, sum_fixed = 0;
+  for (size_t c = 0; c < 3; ++c) {
+    EXPECT_LT(measured.channels[c].fit.covered_range.second, 240.0 / 255 - 0.005);
+    EXPECT_GT(fixed.channels[c].fit.covered_range.second, 240.0 / 255 - 0.002);
+    const IntensityRange range{measured.channels[c].fit.covered_range.first, 0.93};
+    const double e_measured = compareCurves(b.truth, measured.channels[c].fit.inverse, range, range).rmse_covered_aligned;
+    const double e_fixed = compareCurves(b.truth, fixed.channels[c].fit.inverse, range, range).rmse_covered_aligned;
+    EXPECT_LT(e_measured, 0.01) << channelName(measured.channels[c].channel);
+    sum_measured += e_measured;
+    sum_fixed += e_fixed;
+  }
+  EXPECT_LT(sum_measured, 0.7 * sum_fixed);
+  BracketCalibrationOptions bad;
+  bad.sampling.plateau_floor = 0.995;
+  EXPECT_THROW(bad.check(), InvalidInput);
+}
+
 TEST(Bracket, WithoutExposuresEstimatesThemAndSaysSo) {
   const SyntheticBracket b = syntheticBracket();
   const BracketCalibrationResult result = calibrateBracket(framesOf(b, false));

@@ -33,6 +33,9 @@ void BracketSamplingOptions::check() const {
   if (candidates < points) throw InvalidInput("bracket sampling: candidates must be ≥ points", ErrorSubject::options);
   if (!(low >= 0 && low < high && high <= 1))
     throw InvalidInput("bracket sampling: need 0 ≤ low < high ≤ 1", ErrorSubject::options);
+  if (!(top > low && top <= 1)) throw InvalidInput("bracket sampling: need low < top ≤ 1", ErrorSubject::options);
+  if (!(plateau_floor > low && plateau_floor < top))
+    throw InvalidInput("bracket sampling: need low < plateau_floor < top", ErrorSubject::options);
   if (margin < 0) throw InvalidInput("bracket sampling: margin must be ≥ 0", ErrorSubject::options);
   if (!(max_saturation > 0 && max_saturation <= 1))
     throw InvalidInput("bracket sampling: max_saturation must be in (0, 1]", ErrorSubject::options);
@@ -273,7 +276,45 @@ struct Samples {
   std::vector<std::vector<cv::Vec3f>> values;  // [point][frame]
   std::vector<float> saturation;               // [point]: pointSaturation
   std::vector<float> roughness;                // [point]: largest local std of the grey over its informative frames
+  std::vector<int> brightness_class;           // [point]: its class of scene brightness (0 … classes−1)
+  cv::Vec3f limit{1, 1, 1};                    // per plane: a value at or above this is clipped (clippingLimits)
 };
+
+// Whether plane `plane` of point p in frame j is an exact observation: above the noise floor, below the plane's
+// clipping limit.
+bool isObservation(const Samples& samples, std::size_t p, std::size_t j, int plane, const BracketSamplingOptions& options) {
+  const float z = samples.values[p][j][plane];
+  return z >= options.low && z < samples.limit[plane];
+}
+
+// Each plane's clipping limit, measured where the frames show it: a channel is clipped where its value stops rising
+// with the exposure. For every point and pair of frames neighbouring in exposure (the brighter ≥ 5 % more exposed),
+// a value above `plateau_floor` that the brighter frame does not exceed by more than 0.5 % is on the plateau; with
+// enough such values (≥ max(5, 1 % of the points)) the limit is their lowest decile minus 0.01, never above `top`.
+// Cameras differ: many JPEGs clip at code 255, some (the Nikon E995 window set) at ≈ 0.97–0.98, so a fixed mean
+// limit either drops the unclipped top of a channel (blue of a white patch at 0.97–0.99 on the Middlebury cameras)
+// or lets a lower plateau in (docs/RESULTS.md#bracket, issue 21's fourth round).
+void clippingLimits(Samples& samples, const std::vector<double>& exposure, const BracketSamplingOptions& options) {
+  std::vector<std::size_t> order(exposure.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return exposure[a] < exposure[b]; });
+  const std::size_t enough = std::max<std::size_t>(5, samples.values.size() / 100);
+  for (int plane = 0; plane < 3; ++plane) {
+    std::vector<float> plateau;
+    for (const auto& values : samples.values)
+      for (std::size_t k = 1; k < order.size(); ++k) {
+        if (!(exposure[order[k]] >= 1.05 * exposure[order[k - 1]])) continue;
+        const float dark = values[order[k - 1]][plane], bright = values[order[k]][plane];
+        if (dark > options.plateau_floor && bright <= dark * 1.005f) plateau.push_back(dark);
+      }
+    float limit = float(options.top);
+    if (plateau.size() >= enough) {
+      std::nth_element(plateau.begin(), plateau.begin() + long(plateau.size() / 10), plateau.end());
+      limit = std::min(limit, plateau[plateau.size() / 10] - 0.01f);
+    }
+    samples.limit[plane] = std::max(limit, float(options.plateau_floor));
+  }
+}
 
 // A point's colour saturation, (max − min)/max over its planes, in the frame where its brightest plane is highest
 // while below `high` (the least noisy unclipped view of its colour; a dark view's noise would make any colour look
@@ -345,6 +386,7 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
   }
   std::mt19937_64 rng(options.seed);
   std::vector<Candidate> chosen;
+  std::vector<int> chosen_class;
   int remaining_bins = 0;
   for (const auto& bin : bins) remaining_bins += !bin.empty();
   int budget = options.points;
@@ -358,20 +400,19 @@ Samples samplePoints(const AlignedBracket& aligned, const BracketSamplingOptions
     std::shuffle(pool.begin(), pool.end(), rng);
     const int take = std::min<int>(quota, int(pool.size()));
     chosen.insert(chosen.end(), pool.begin(), pool.begin() + take);
+    chosen_class.insert(chosen_class.end(), std::size_t(take), int(&bin - bins.data()));
     budget -= take;
   }
   Samples samples;
+  samples.brightness_class = chosen_class;
+  const auto at = [](const cv::Mat& m, cv::Point p) {
+    if (m.channels() == 1) return cv::Vec3f::all(m.at<float>(p));
+    return m.at<cv::Vec3f>(p);
+  };
   for (const Candidate& c : chosen) {
     const cv::Point p = c.p;
     std::vector<cv::Vec3f> v;
-    for (const cv::Mat& m : means) {
-      if (m.channels() == 1) {
-        const float g = m.at<float>(p);
-        v.emplace_back(g, g, g);
-      } else {
-        v.push_back(m.at<cv::Vec3f>(p));
-      }
-    }
+    for (const cv::Mat& m : means) v.push_back(at(m, p));
     samples.positions.push_back(p);
     samples.saturation.push_back(pointSaturation(v, options.high));
     samples.roughness.push_back(c.roughness);
@@ -398,13 +439,17 @@ std::vector<ScaledObservation> channelObservations(const Samples& samples, int p
     if (samples.saturation[p] > options.max_saturation) continue;  // vivid: rendered beyond the channel's curve
     std::vector<ScaledObservation> own;
     for (std::size_t j = 0; j < exposure.size(); ++j) {
+      if (!isObservation(samples, p, j, plane, options)) continue;
       const double z = samples.values[p][j][plane];
-      if (z < options.low || z >= options.high) continue;
       ScaledObservation o;
       o.x = z;
       o.y = exposure[j];
       o.group = points;
-      o.fold = points % 2;
+      // Folds by brightness class, not by point: the points of one flat region (a wall, a chart patch) are near
+      // copies of each other, so holding out every other point tests the curve on the intensities it was fitted
+      // on and K follows the region's own misfit; holding out every other brightness class asks the curve for
+      // values between those it saw (docs/RESULTS.md#bracket, issue 21's fourth round).
+      o.fold = samples.brightness_class[p] % 2;
       o.weight = observationWeight(z, exposure[j], options.high);
       own.push_back(o);
     }
@@ -432,14 +477,13 @@ void refineExposures(const Samples& samples, const std::vector<BracketChannelRes
         if (samples.saturation[p] > options.max_saturation) continue;
         int usable = 0;
         for (std::size_t k = 0; k < exposure.size(); ++k) {
-          const double z = samples.values[p][k][planes[ci]];
-          usable += z >= options.low && z < options.high;
+          usable += isObservation(samples, p, k, planes[ci], options);
         }
         if (usable < 2) continue;  // the same points, in the same order, as channelObservations
         const double z = samples.values[p][j][planes[ci]];
         const double s = fit.scales[static_cast<std::size_t>(group)];
         ++group;
-        if (z < options.low || z >= options.high || !(s > 0)) continue;
+        if (!isObservation(samples, p, j, planes[ci], options) || !(s > 0)) continue;
         estimates.push_back(s * interpolateSamples(fit.inverse, z));
       }
     }
@@ -581,7 +625,8 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
   }
 
   if (progress) progress("sample", 0, "");
-  const Samples samples = samplePoints(aligned, options.sampling);
+  Samples samples = samplePoints(aligned, options.sampling);
+  clippingLimits(samples, start, options.sampling);
   result.points = int(samples.positions.size());
   for (const cv::Point& p : samples.positions) result.point_positions.emplace_back(int(p.x / scale), int(p.y / scale));
 

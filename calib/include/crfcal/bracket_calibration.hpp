@@ -19,7 +19,8 @@
 // that path does not settle); a frame that does not register is refused (not the same scene).
 // Samples. Scene points on flat areas (the largest local standard deviation over the frames is among the lowest of
 // their brightness class), spread over the brightness range; a point's value is the local mean of each channel;
-// values near 0 (noise floor) or 1 (clipping) are not data, nor are points of a vivid colour (max_saturation).
+// values near 0 (noise floor) or at the channel's clipping limit (measured from the frames where they show a
+// plateau) are not data, nor are points of a vivid colour (max_saturation). Cross-validation folds are alternate brightness classes (a flat region's points are near copies).
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -48,7 +49,15 @@ struct BracketSamplingOptions {
   double flat_fraction = 0.3;    // of each brightness class, only the flattest fraction of candidates is drawn
   int candidates = 60000;        // candidate positions on a regular grid of the reference frame
   double low = 0.02;             // a channel value below this (unit scale) is the noise floor: not data
-  double high = 0.97;            // … at or above this: clipped, not data
+  // A channel value at or above this is clipped, not data — unless the frames show the channel's clipping plateau
+  // lower (values that stop rising with the exposure; the limit is then just below it): cameras clip at different
+  // codes. 0.97 before issue 21's fourth round (= `high`), which dropped the unclipped top of the channel that
+  // renders brightest (JPEG blue of a white patch) so its shoulder was extrapolated (docs/RESULTS.md#bracket).
+  double top = 0.99;
+  double plateau_floor = 0.9;    // values above this that a brighter frame does not exceed are the plateau
+  // A grey (channel mean) at or above this is too near clipping to judge a candidate's flatness or a point's colour
+  // there; observations are weighted down over the last 0.1 below it (a channel about to clip bends).
+  double high = 0.97;
   // A scene point is data only while its colour is at most this saturated, (max − min)/max over R, G, B in its
   // brightest unclipped frame: cameras render vivid colours through gamut mapping / saturation that no per-channel
   // curve describes. 1: every colour. Chosen on the "choose" cameras of `crfcal bench references`
