@@ -274,9 +274,25 @@ BandAgreement bandAgreement(const std::vector<double>& phi_a, const CurveBand* b
   return agreement;
 }
 
+void ReplicateRatioRule::check() const {
+  if (!(images_weight >= 0 && images_weight <= 1)) throw InvalidInput("band: the ratio rule's weight must be in [0, 1]");
+  if (!(images_ratio > 0 && ratio > 0 && std::isfinite(images_ratio) && std::isfinite(ratio)))
+    throw InvalidInput("band: the ratio rule's ratios must be positive");
+}
+
+double ReplicateRatioRule::heldRatio(double half_images_ratio) const {
+  if (!(half_images_ratio > 0 && std::isfinite(half_images_ratio))) return ratio;
+  return ratio * std::exp(images_weight * std::log(half_images_ratio / images_ratio));
+}
+
 HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                                     const CrfFitOptions& fit_options, const cv::Mat& used_mask, int replicates,
-                                    int block_size, std::uint64_t seed) {
+                                    int block_size, std::uint64_t seed,
+                                    const std::optional<ReplicateRatioRule>& ratio_rule) {
+  if (ratio_rule) {
+    ratio_rule->check();
+    if (!fit_options.fit_ratio) throw InvalidInput("band: a ratio rule needs the halves to fit r");
+  }
   HalfSampleRefits refits;
   const int block = std::max(block_size, 2 * std::max(kernel.rows, kernel.cols));
   const std::vector<cv::Mat> masks = replicates > 0 && !used_mask.empty()
@@ -286,14 +302,23 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
   // its sums, do not depend on that, so the band is the same as from a serial loop).
   const int n = static_cast<int>(masks.size());
   std::vector<std::optional<CrfFitResult>> fits(n);
+  std::vector<double> images_ratios(n, 0.0);
   const std::vector<std::exception_ptr> errors = detail::runInParallel(n, [&](int i) {
     CrfFitOptions o = fit_options;
     o.pixel_selection = masks[i];
     o.progress = nullptr;
     try {
       fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
+      images_ratios[i] = fits[i]->ratio;
+      if (ratio_rule) {  // the half's own combination of r, then φ at it (from the free fit)
+        const double held = ratio_rule->heldRatio(fits[i]->ratio);
+        o.fit_ratio = false;
+        o.nominal_ratio = held;
+        if (o.start) o.start = CrfFitOptions::Start{fits[i]->model, held};
+        fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
+      }
     } catch (const InvalidInput&) {
-      // a half without enough edge pixels: the estimate rests on the others
+      fits[i].reset();  // a half without enough edge pixels: the estimate rests on the others
     }
   });
   for (int i = 0; i < n; ++i) {
@@ -304,13 +329,15 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
     }
     refits.curves.push_back(fits[i]->inverse_crf);
     refits.ratios.push_back(fits[i]->ratio);
+    refits.images_ratios.push_back(images_ratios[i]);
   }
   return refits;
 }
 
 CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                             const CrfFitOptions& fit_options, const CrfFitResult& fit,
-                            std::pair<double, double> covered, const CurveBandOptions& options) {
+                            std::pair<double, double> covered, const CurveBandOptions& options,
+                            const std::optional<ReplicateRatioRule>& ratio_rule) {
   options.check();
   const auto start = std::chrono::steady_clock::now();
   CrfFitOptions refit_options = fit_options;
@@ -321,7 +348,8 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
       refit_options.start = CrfFitOptions::Start{fit.model, fit.ratio};
   }
   const HalfSampleRefits refits = refitOnHalfSamples(sharp, blurred, kernel, refit_options, fit.pixels.used_mask,
-                                                     options.replicates, options.block_size, options.seed);
+                                                     options.replicates, options.block_size, options.seed,
+                                                     ratio_rule);
   const std::vector<std::vector<double>>& curves = refits.curves;
   const int failed = refits.failed;
   std::vector<std::vector<double>> alternatives;
@@ -330,6 +358,8 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
       alternatives.push_back(candidate.inverse_crf);
   CurveBand band = bandFromReplicates(fit.inverse_crf, curves, covered, options, alternatives);
   band.failed_replicates = failed;
+  band.replicate_ratios = refits.ratios;
+  band.replicate_images_ratios = refits.images_ratios;
   band.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return band;
 }
