@@ -98,6 +98,11 @@ TEST(CurveBand, MedianShapeSigmaScalesWithTheReplicatesSpread) {
   const std::vector<double> fit = gammaCurve(2.2);
   EXPECT_DOUBLE_EQ(scoreBand(wide, fit, fit).median_shape_width_inside, 2 * medianShapeHalfWidth(wide));
   EXPECT_EQ(medianShapeSigma(bandWithSpread(0)), 0.0);
+  // With the images-alone spread (r combined with EXIF), the verdict reads that one; the band keeps its own width.
+  CurveBand combined = narrow;
+  combined.images_ratio_half_width = wide.shape_half_width;
+  EXPECT_DOUBLE_EQ(medianShapeSigma(combined), medianShapeSigma(wide));
+  EXPECT_DOUBLE_EQ(medianShapeHalfWidth(combined), medianShapeHalfWidth(narrow));
   EXPECT_EQ(medianShapeSigma(CurveBand{}), 0.0);
 }
 

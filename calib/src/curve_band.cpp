@@ -51,6 +51,22 @@ std::vector<double> shapeHalfWidth(const std::vector<double>& phi, const std::ve
   return width;
 }
 
+// shapeHalfWidth widened by each alternative fit's scale-aligned difference (the model term).
+std::vector<double> shapeHalfWidthWithModel(const std::vector<double>& phi,
+                                            const std::vector<std::vector<double>>& replicates, int i0, int i1,
+                                            const CurveBandOptions& options,
+                                            const std::vector<std::vector<double>>& alternatives) {
+  std::vector<double> width = shapeHalfWidth(phi, replicates, i0, i1, options.level);
+  const int n = static_cast<int>(phi.size());
+  if (options.include_model_spread)
+    for (const auto& other : alternatives) {
+      if (static_cast<int>(other.size()) != n) continue;
+      const double a = alignmentFactor(phi, other, i0, i1);
+      for (int i = 0; i < n; ++i) width[i] = std::hypot(width[i], a * other[i] - phi[i]);
+    }
+  return width;
+}
+
 }  // namespace
 
 // Random halves of the blocks holding used pixels, in complementary pairs (antithetic: every block is in exactly
@@ -134,13 +150,7 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
   band.level = options.level;
   band.covered = covered;
   band.replicates = static_cast<int>(replicates.size());
-  band.shape_half_width = shapeHalfWidth(phi, replicates, i0, i1, options.level);
-  if (options.include_model_spread)
-    for (const auto& other : alternatives) {
-      if (static_cast<int>(other.size()) != n) continue;
-      const double a = alignmentFactor(phi, other, i0, i1);
-      for (int i = 0; i < n; ++i) band.shape_half_width[i] = std::hypot(band.shape_half_width[i], a * other[i] - phi[i]);
-    }
+  band.shape_half_width = shapeHalfWidthWithModel(phi, replicates, i0, i1, options, alternatives);
   const std::vector<double>& h = band.shape_half_width;
 
   // The exponents beyond the data, from the fit's own exponent at the edge of the data (over ~5 % of x).
@@ -205,17 +215,24 @@ std::pair<int, int> coveredSamples(const CurveBand& band, int n) {
 
 }  // namespace
 
-double medianShapeHalfWidth(const CurveBand& band) {
-  const int n = static_cast<int>(band.shape_half_width.size());
+namespace {
+
+double medianOverCovered(const CurveBand& band, const std::vector<double>& half_width) {
+  const int n = static_cast<int>(half_width.size());
   if (n < 2) return 0;
   const auto [i0, i1] = coveredSamples(band, n);
-  return upperMedian(std::vector<double>(band.shape_half_width.begin() + i0,
-                                         band.shape_half_width.begin() + std::min(i1, n - 1) + 1));
+  return upperMedian(std::vector<double>(half_width.begin() + i0, half_width.begin() + std::min(i1, n - 1) + 1));
 }
+
+}  // namespace
+
+double medianShapeHalfWidth(const CurveBand& band) { return medianOverCovered(band, band.shape_half_width); }
 
 double medianShapeSigma(const CurveBand& band) {
   const double dof = band.replicates >= 2 ? static_cast<double>(band.replicates) : 0.0;  // 0: the normal quantile
-  return medianShapeHalfWidth(band) / studentQuantile(0.5 + band.level / 2, dof);
+  const std::vector<double>& half_width =
+      band.images_ratio_half_width.empty() ? band.shape_half_width : band.images_ratio_half_width;
+  return medianOverCovered(band, half_width) / studentQuantile(0.5 + band.level / 2, dof);
 }
 
 BandScore scoreBand(const CurveBand& band, const std::vector<double>& phi, const std::vector<double>& truth) {
@@ -303,6 +320,7 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
   const int n = static_cast<int>(masks.size());
   std::vector<std::optional<CrfFitResult>> fits(n);
   std::vector<double> images_ratios(n, 0.0);
+  std::vector<std::vector<double>> images_curves(n);
   const std::vector<std::exception_ptr> errors = detail::runInParallel(n, [&](int i) {
     CrfFitOptions o = fit_options;
     o.pixel_selection = masks[i];
@@ -310,6 +328,7 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
     try {
       fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
       images_ratios[i] = fits[i]->ratio;
+      if (ratio_rule) images_curves[i] = fits[i]->inverse_crf;
       if (ratio_rule) {  // the half's own combination of r, then φ at it (from the free fit)
         const double held = ratio_rule->heldRatio(fits[i]->ratio);
         o.fit_ratio = false;
@@ -330,6 +349,7 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
     refits.curves.push_back(fits[i]->inverse_crf);
     refits.ratios.push_back(fits[i]->ratio);
     refits.images_ratios.push_back(images_ratios[i]);
+    if (ratio_rule) refits.images_curves.push_back(images_curves[i]);
   }
   return refits;
 }
@@ -358,6 +378,12 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
       alternatives.push_back(candidate.inverse_crf);
   CurveBand band = bandFromReplicates(fit.inverse_crf, curves, covered, options, alternatives);
   band.failed_replicates = failed;
+  if (ratio_rule && refits.images_curves.size() >= 2) {
+    const int n = static_cast<int>(fit.inverse_crf.size());
+    const int i0 = sampleIndex(covered.first, n), i1 = std::max(sampleIndex(covered.second, n), i0 + 1);
+    band.images_ratio_half_width =
+        shapeHalfWidthWithModel(fit.inverse_crf, refits.images_curves, i0, i1, options, alternatives);
+  }
   band.replicate_ratios = refits.ratios;
   band.replicate_images_ratios = refits.images_ratios;
   band.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -73,6 +73,11 @@ struct CurveBand {
   // Half-width of the SHAPE band (sampling spread and the model term, φ's scale aligned), kCurveSamples samples; meaningful
   // inside `covered`, where it is what two calibrations of one camera should agree within (compare).
   std::vector<double> shape_half_width;
+  // With a ReplicateRatioRule: the same half-width from the halves' refits with their OWN r (the images alone, no
+  // EXIF), model term included; empty otherwise. How well the pair's images fix φ's shape: the verdict's reading
+  // (medianShapeSigma), since a shape that only EXIF's r pins is not fixed by the pair. Not a band of the reported
+  // curve (those refits are not centred on it: they sit at the images' r).
+  std::vector<double> images_ratio_half_width;
   std::pair<double, double> covered{0, 1};  // the covered range the band was built for
   std::pair<double, double> scale_range{1, 1};  // factors s with φ_true ≈ s·φ on the covered range
   std::pair<double, double> exponent_above{1, 1};  // [g_lo, g_hi] used above the covered range
@@ -94,9 +99,10 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
                              std::pair<double, double> covered, const CurveBandOptions& options = {},
                              const std::vector<std::vector<double>>& alternatives = {});
 
-// The shape band's median half-width over its covered range, and that half-width as a standard deviation (divided by
-// the band's t quantile at its level and number of refits; the normal quantile without refits). What a verdict can
-// compare with an accuracy target of φ's shape (channel_verdict.hpp). 0 for an empty band.
+// The shape band's median half-width over its covered range, and as a standard deviation (divided by the band's t
+// quantile at its level and number of refits; the normal quantile without refits). medianShapeSigma is what a
+// verdict compares with an accuracy target of φ's shape (channel_verdict.hpp): it reads images_ratio_half_width
+// when the band has one (how well the images alone fix the shape), else shape_half_width. 0 for an empty band.
 double medianShapeHalfWidth(const CurveBand& band);
 double medianShapeSigma(const CurveBand& band);
 
@@ -109,6 +115,7 @@ struct HalfSampleRefits {
   std::vector<std::vector<double>> curves;  // φ of each successful refit, kCurveSamples samples
   std::vector<double> ratios;               // r of each successful refit (the held r with a ReplicateRatioRule)
   std::vector<double> images_ratios;        // r each refit found from its half alone (= ratios without a rule)
+  std::vector<std::vector<double>> images_curves;  // with a rule: φ of each half's own-r fit (before the held-r refit)
   int failed = 0;
 };
 
