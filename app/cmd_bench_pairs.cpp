@@ -71,6 +71,9 @@ struct PairsArgs {
   double learned_prior_weight = PairCalibrationOptions{}.fit.learned_prior_weight;  // --shoulder learned
   bool pairs_only = false;
   int band_replicates = PairCalibrationOptions{}.band.replicates;  // 0: no band (and no band table)
+  // r of the band's refits when r came from the evidence: "combined" (each half combines its r with EXIF, the
+  // default) or "own" (each half keeps its images' r, as before; CurveBandOptions::replicates_combine_ratio).
+  std::string band_replicate_ratio = PairCalibrationOptions{}.band.replicates_combine_ratio ? "combined" : "own";
   bool force = false;  // write into an output directory holding other files (never deletes them)
   std::string regime = "auto";  // auto | sharp-normal | real (see the top of this file); auto = real for r > 2
   std::string noise_camera = "LGE Nexus 5";  // real regime: darktable's only phone (real pairs are phone pairs)
@@ -78,6 +81,11 @@ struct PairsArgs {
   double blurred_iso = 0;       // real regime: ISO of the blurred shot (0: the noise camera's lowest profiled ISO);
                                 // the sharp shot gets blurred_iso · r
 };
+
+std::vector<double> scaled(std::vector<double> values, double factor) {
+  for (double& v : values) v *= factor;
+  return values;
+}
 
 bool realRegime(const PairsArgs& args, double ratio) {
   return args.regime == "real" || (args.regime == "auto" && ratio > 2);
@@ -290,6 +298,7 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
   options.band.replicates = args.band_replicates;
+  options.band.replicates_combine_ratio = args.band_replicate_ratio == "combined";
   return options;
 }
 
@@ -470,6 +479,8 @@ struct PairsRun {
                        {"median_width_inside", s.band->median_width_inside},
                        {"median_shape_width_inside", s.band->median_shape_width_inside},
                        {"scale_range", {band.scale_range.first, band.scale_range.second}},
+                       {"replicate_ratios_over_true", scaled(band.replicate_ratios, 1 / c.ratio)},
+                       {"replicate_images_ratios_over_true", scaled(band.replicate_images_ratios, 1 / c.ratio)},
                        {"seconds", band.seconds}, {"summary", band.summary()}};
     }
     if (r.verdicts.count("G")) {
@@ -728,6 +739,11 @@ const BenchRegistration registration(
                          "Half-sample refits of the band of phi (even; 0: no band, no band table), as calibrate")
           ->capture_default_str()
           ->check(CLI::Range(0, 200));
+      command.add_option("--band-replicate-ratio", args->band_replicate_ratio,
+                         "r of the band's refits when r came from the evidence: combined (each half combines its own "
+                         "r with EXIF as the pair did) or own (each half keeps its images' r)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"combined", "own"}));
       command.add_flag("--pairs-only", args->pairs_only, "Only write the pairs (no calibration)");
       command.add_option("-o,--output", args->output, "Output directory")->required();
       command.add_flag("--force", args->force, kForceHelp);

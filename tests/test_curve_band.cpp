@@ -98,6 +98,11 @@ TEST(CurveBand, MedianShapeSigmaScalesWithTheReplicatesSpread) {
   const std::vector<double> fit = gammaCurve(2.2);
   EXPECT_DOUBLE_EQ(scoreBand(wide, fit, fit).median_shape_width_inside, 2 * medianShapeHalfWidth(wide));
   EXPECT_EQ(medianShapeSigma(bandWithSpread(0)), 0.0);
+  // With the images-alone spread (r combined with EXIF), the verdict reads that one; the band keeps its own width.
+  CurveBand combined = narrow;
+  combined.images_ratio_half_width = wide.shape_half_width;
+  EXPECT_DOUBLE_EQ(medianShapeSigma(combined), medianShapeSigma(wide));
+  EXPECT_DOUBLE_EQ(medianShapeHalfWidth(combined), medianShapeHalfWidth(narrow));
   EXPECT_EQ(medianShapeSigma(CurveBand{}), 0.0);
 }
 
@@ -151,6 +156,83 @@ TEST(CurveBand, SyntheticPairBandContainsTheTruth) {
   EXPECT_GE(double(score.inside_hits) / score.inside, 0.85) << band.summary();
   EXPECT_GE(double(score.above_hits) / score.above, 0.85) << band.summary();
   EXPECT_LT(score.median_width_inside, 0.3) << band.summary();
+}
+
+TEST(CurveBand, ReplicateRatioRuleCombinesEachHalfsRatioAsThePairDid) {
+  const ReplicateRatioRule rule{0.6, 3.8, 4.1};
+  EXPECT_DOUBLE_EQ(rule.heldRatio(3.8), 4.1);  // the whole pair's images: the reported r
+  EXPECT_NEAR(std::log(rule.heldRatio(3.8 * std::exp(0.05)) / 4.1), 0.6 * 0.05, 1e-12);  // w times the half's move
+  EXPECT_DOUBLE_EQ((ReplicateRatioRule{0.0, 3.8, 4.1}.heldRatio(2.0)), 4.1);  // r held at EXIF: no spread of r
+  EXPECT_THROW((ReplicateRatioRule{1.5, 3.8, 4.1}.check()), InvalidInput);
+}
+
+// Mean and root-mean-square of the half-sample refits' deviation from the reported φ (each after its best common
+// scale over the covered range), averaged over the covered samples.
+std::pair<double, double> replicateDeviation(const std::vector<double>& phi, const HalfSampleRefits& refits,
+                                             std::pair<double, double> covered) {
+  const int n = static_cast<int>(phi.size());
+  const int i0 = static_cast<int>(covered.first * (n - 1)), i1 = static_cast<int>(covered.second * (n - 1));
+  double mean_abs = 0, rms = 0;
+  for (int i = i0; i <= i1; ++i) {
+    double sum = 0, sum_squares = 0;
+    for (const auto& rep : refits.curves) {
+      double num = 0, den = 0;
+      for (int k = i0; k <= i1; ++k) num += phi[k] * rep[k], den += rep[k] * rep[k];
+      const double d = num / den * rep[i] - phi[i];
+      sum += d, sum_squares += d * d;
+    }
+    mean_abs += std::abs(sum / refits.curves.size());
+    rms += std::sqrt(sum_squares / refits.curves.size());
+  }
+  return {mean_abs / (i1 - i0 + 1), rms / (i1 - i0 + 1)};
+}
+
+// The property the shape band rests on: the half-sample refits deviate from the reported φ by the sampling error
+// alone, centred on it (then Var(half − full) ≈ Var(full)). When the reported r combines the images' r with EXIF
+// (here 5 % above the images', weight 0.5), halves that keep their own r all sit at the images' r and deviate from
+// the reported curve by the same exponent shift: a bias that inflated the band (99 % coverage at r = 4, 8 on
+// `bench pairs`). With the rule each half combines its own r the same way and the refits are centred again.
+TEST(CurveBand, HalfSampleRefitsRunTheReportedRatioEstimatorAndAreCentredOnIt) {
+  const GammaModel truth_model{2.2};
+  SimulationOptions sim;
+  sim.ratio = 4;
+  sim.noise_variance = 0.0002;
+  const cv::Mat kernel = test::levinKernel(3);
+  const SimulationResult pair = simulatePair(test::levinImage(2) * 0.2, truth_model, kernel, sim);
+  CrfFitOptions free_ratio;
+  free_ratio.nominal_ratio = 4;
+  const CrfFitResult images = fitInverseCrf(pair.sharp, pair.blurred, kernel, free_ratio);
+  const double reported_ratio = images.ratio * 1.05;  // images' r 0.5, EXIF 0.5 with EXIF at images' × 1.05²
+  CrfFitOptions held = free_ratio;
+  held.fit_ratio = false;
+  held.nominal_ratio = reported_ratio;
+  const CrfFitResult reported = fitInverseCrf(pair.sharp, pair.blurred, kernel, held);
+  const std::pair<double, double> covered{reported.covered_levels.first / double(reported.levels - 1),
+                                          reported.covered_levels.second / double(reported.levels - 1)};
+  CrfFitOptions refit = free_ratio;  // as the band stage: the halves fit r, from the reported fit
+  refit.nominal_ratio = reported_ratio;
+  refit.model = reported.chosen == "ggcm" ? CrfModelChoice::ggcm : CrfModelChoice::emor;
+  refit.start = CrfFitOptions::Start{reported.model, reported_ratio};
+  const ReplicateRatioRule rule{0.5, images.ratio, reported_ratio};
+  const HalfSampleRefits own = refitOnHalfSamples(pair.sharp, pair.blurred, kernel, refit, reported.pixels.used_mask,
+                                                  6, 32, 1);
+  const HalfSampleRefits combined = refitOnHalfSamples(pair.sharp, pair.blurred, kernel, refit,
+                                                       reported.pixels.used_mask, 6, 32, 1, rule);
+  ASSERT_EQ(own.curves.size(), 6u);
+  ASSERT_EQ(combined.curves.size(), 6u);
+  double mean_log_own = 0, mean_log_combined = 0;
+  for (int k = 0; k < 6; ++k) {
+    mean_log_own += std::log(own.ratios[k] / reported_ratio) / 6;
+    mean_log_combined += std::log(combined.ratios[k] / reported_ratio) / 6;
+    EXPECT_NEAR(combined.ratios[k], rule.heldRatio(combined.images_ratios[k]), 1e-9);
+  }
+  EXPECT_LT(mean_log_own, -0.03);  // the halves' own r: the images', 5 % below the reported
+  EXPECT_LT(std::abs(mean_log_combined), 0.01);
+  const auto [mean_own, rms_own] = replicateDeviation(reported.inverse_crf, own, covered);
+  const auto [mean_combined, rms_combined] = replicateDeviation(reported.inverse_crf, combined, covered);
+  EXPECT_GT(mean_own, 0.8 * rms_own) << "own r: the deviation is a common shift";
+  EXPECT_LT(mean_combined, 0.7 * rms_combined) << "combined r: centred";
+  EXPECT_LT(rms_combined, 0.5 * rms_own);
 }
 
 io::CalibrationReport reportWithBand(double gamma, double half_width) {

@@ -51,6 +51,22 @@ std::vector<double> shapeHalfWidth(const std::vector<double>& phi, const std::ve
   return width;
 }
 
+// shapeHalfWidth widened by each alternative fit's scale-aligned difference (the model term).
+std::vector<double> shapeHalfWidthWithModel(const std::vector<double>& phi,
+                                            const std::vector<std::vector<double>>& replicates, int i0, int i1,
+                                            const CurveBandOptions& options,
+                                            const std::vector<std::vector<double>>& alternatives) {
+  std::vector<double> width = shapeHalfWidth(phi, replicates, i0, i1, options.level);
+  const int n = static_cast<int>(phi.size());
+  if (options.include_model_spread)
+    for (const auto& other : alternatives) {
+      if (static_cast<int>(other.size()) != n) continue;
+      const double a = alignmentFactor(phi, other, i0, i1);
+      for (int i = 0; i < n; ++i) width[i] = std::hypot(width[i], a * other[i] - phi[i]);
+    }
+  return width;
+}
+
 }  // namespace
 
 // Random halves of the blocks holding used pixels, in complementary pairs (antithetic: every block is in exactly
@@ -134,13 +150,7 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
   band.level = options.level;
   band.covered = covered;
   band.replicates = static_cast<int>(replicates.size());
-  band.shape_half_width = shapeHalfWidth(phi, replicates, i0, i1, options.level);
-  if (options.include_model_spread)
-    for (const auto& other : alternatives) {
-      if (static_cast<int>(other.size()) != n) continue;
-      const double a = alignmentFactor(phi, other, i0, i1);
-      for (int i = 0; i < n; ++i) band.shape_half_width[i] = std::hypot(band.shape_half_width[i], a * other[i] - phi[i]);
-    }
+  band.shape_half_width = shapeHalfWidthWithModel(phi, replicates, i0, i1, options, alternatives);
   const std::vector<double>& h = band.shape_half_width;
 
   // The exponents beyond the data, from the fit's own exponent at the edge of the data (over ~5 % of x).
@@ -205,17 +215,24 @@ std::pair<int, int> coveredSamples(const CurveBand& band, int n) {
 
 }  // namespace
 
-double medianShapeHalfWidth(const CurveBand& band) {
-  const int n = static_cast<int>(band.shape_half_width.size());
+namespace {
+
+double medianOverCovered(const CurveBand& band, const std::vector<double>& half_width) {
+  const int n = static_cast<int>(half_width.size());
   if (n < 2) return 0;
   const auto [i0, i1] = coveredSamples(band, n);
-  return upperMedian(std::vector<double>(band.shape_half_width.begin() + i0,
-                                         band.shape_half_width.begin() + std::min(i1, n - 1) + 1));
+  return upperMedian(std::vector<double>(half_width.begin() + i0, half_width.begin() + std::min(i1, n - 1) + 1));
 }
+
+}  // namespace
+
+double medianShapeHalfWidth(const CurveBand& band) { return medianOverCovered(band, band.shape_half_width); }
 
 double medianShapeSigma(const CurveBand& band) {
   const double dof = band.replicates >= 2 ? static_cast<double>(band.replicates) : 0.0;  // 0: the normal quantile
-  return medianShapeHalfWidth(band) / studentQuantile(0.5 + band.level / 2, dof);
+  const std::vector<double>& half_width =
+      band.images_ratio_half_width.empty() ? band.shape_half_width : band.images_ratio_half_width;
+  return medianOverCovered(band, half_width) / studentQuantile(0.5 + band.level / 2, dof);
 }
 
 BandScore scoreBand(const CurveBand& band, const std::vector<double>& phi, const std::vector<double>& truth) {
@@ -274,9 +291,25 @@ BandAgreement bandAgreement(const std::vector<double>& phi_a, const CurveBand* b
   return agreement;
 }
 
+void ReplicateRatioRule::check() const {
+  if (!(images_weight >= 0 && images_weight <= 1)) throw InvalidInput("band: the ratio rule's weight must be in [0, 1]");
+  if (!(images_ratio > 0 && ratio > 0 && std::isfinite(images_ratio) && std::isfinite(ratio)))
+    throw InvalidInput("band: the ratio rule's ratios must be positive");
+}
+
+double ReplicateRatioRule::heldRatio(double half_images_ratio) const {
+  if (!(half_images_ratio > 0 && std::isfinite(half_images_ratio))) return ratio;
+  return ratio * std::exp(images_weight * std::log(half_images_ratio / images_ratio));
+}
+
 HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                                     const CrfFitOptions& fit_options, const cv::Mat& used_mask, int replicates,
-                                    int block_size, std::uint64_t seed) {
+                                    int block_size, std::uint64_t seed,
+                                    const std::optional<ReplicateRatioRule>& ratio_rule) {
+  if (ratio_rule) {
+    ratio_rule->check();
+    if (!fit_options.fit_ratio) throw InvalidInput("band: a ratio rule needs the halves to fit r");
+  }
   HalfSampleRefits refits;
   const int block = std::max(block_size, 2 * std::max(kernel.rows, kernel.cols));
   const std::vector<cv::Mat> masks = replicates > 0 && !used_mask.empty()
@@ -286,14 +319,25 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
   // its sums, do not depend on that, so the band is the same as from a serial loop).
   const int n = static_cast<int>(masks.size());
   std::vector<std::optional<CrfFitResult>> fits(n);
+  std::vector<double> images_ratios(n, 0.0);
+  std::vector<std::vector<double>> images_curves(n);
   const std::vector<std::exception_ptr> errors = detail::runInParallel(n, [&](int i) {
     CrfFitOptions o = fit_options;
     o.pixel_selection = masks[i];
     o.progress = nullptr;
     try {
       fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
+      images_ratios[i] = fits[i]->ratio;
+      if (ratio_rule) images_curves[i] = fits[i]->inverse_crf;
+      if (ratio_rule) {  // the half's own combination of r, then φ at it (from the free fit)
+        const double held = ratio_rule->heldRatio(fits[i]->ratio);
+        o.fit_ratio = false;
+        o.nominal_ratio = held;
+        if (o.start) o.start = CrfFitOptions::Start{fits[i]->model, held};
+        fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
+      }
     } catch (const InvalidInput&) {
-      // a half without enough edge pixels: the estimate rests on the others
+      fits[i].reset();  // a half without enough edge pixels: the estimate rests on the others
     }
   });
   for (int i = 0; i < n; ++i) {
@@ -304,13 +348,16 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
     }
     refits.curves.push_back(fits[i]->inverse_crf);
     refits.ratios.push_back(fits[i]->ratio);
+    refits.images_ratios.push_back(images_ratios[i]);
+    if (ratio_rule) refits.images_curves.push_back(images_curves[i]);
   }
   return refits;
 }
 
 CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                             const CrfFitOptions& fit_options, const CrfFitResult& fit,
-                            std::pair<double, double> covered, const CurveBandOptions& options) {
+                            std::pair<double, double> covered, const CurveBandOptions& options,
+                            const std::optional<ReplicateRatioRule>& ratio_rule) {
   options.check();
   const auto start = std::chrono::steady_clock::now();
   CrfFitOptions refit_options = fit_options;
@@ -321,7 +368,8 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
       refit_options.start = CrfFitOptions::Start{fit.model, fit.ratio};
   }
   const HalfSampleRefits refits = refitOnHalfSamples(sharp, blurred, kernel, refit_options, fit.pixels.used_mask,
-                                                     options.replicates, options.block_size, options.seed);
+                                                     options.replicates, options.block_size, options.seed,
+                                                     ratio_rule);
   const std::vector<std::vector<double>>& curves = refits.curves;
   const int failed = refits.failed;
   std::vector<std::vector<double>> alternatives;
@@ -330,6 +378,14 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
       alternatives.push_back(candidate.inverse_crf);
   CurveBand band = bandFromReplicates(fit.inverse_crf, curves, covered, options, alternatives);
   band.failed_replicates = failed;
+  if (ratio_rule && refits.images_curves.size() >= 2) {
+    const int n = static_cast<int>(fit.inverse_crf.size());
+    const int i0 = sampleIndex(covered.first, n), i1 = std::max(sampleIndex(covered.second, n), i0 + 1);
+    band.images_ratio_half_width =
+        shapeHalfWidthWithModel(fit.inverse_crf, refits.images_curves, i0, i1, options, alternatives);
+  }
+  band.replicate_ratios = refits.ratios;
+  band.replicate_images_ratios = refits.images_ratios;
   band.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return band;
 }

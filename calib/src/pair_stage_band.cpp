@@ -2,6 +2,7 @@
 // fit window's blocks with the final kernel and the fit's options, and the exponent bounds beyond the covered range.
 // When an effect's extended model supplied φ, the refits are of the base fitter: the band then measures the base
 // estimator's sampling spread around the reported curve.
+#include <optional>
 #include <string>
 
 #include "crfcal/kernel.hpp"
@@ -13,10 +14,17 @@ void estimateBands(PairCalibrationState& state) {
   PairCalibrationResult& result = state.result;
   const auto start = Clock::now();
   const cv::Mat kernel = cropKernel(state.kernel, 0.0);  // as fitChannel hands it to the fitter
-  // r held at the combination of the images and EXIF (ratio_evidence.hpp) is still uncertain: the refits fit it
-  // again (from the combined value), so that its spread stays in the band. A user's --fix-ratio stays fixed.
+  // r held at the combination of the images and EXIF (ratio_evidence.hpp) is still uncertain: each refit fits it
+  // again from its half and combines it with EXIF by the pair's weights (ReplicateRatioRule), so that the band
+  // carries the combined r's spread, not the images' alone. A user's --fix-ratio stays fixed.
   CrfFitOptions fit_options = state.fit_options;
-  if (result.ratio_from_evidence) fit_options.fit_ratio = true;
+  std::optional<ReplicateRatioRule> ratio_rule;
+  if (result.ratio_from_evidence) {
+    fit_options.fit_ratio = true;
+    const RatioEvidence& evidence = result.ratio_evidence;
+    if (state.options.band.replicates_combine_ratio)
+      ratio_rule = ReplicateRatioRule{evidence.images_weight, evidence.images_ratio, evidence.ratio};
+  }
   int done = 0;
   for (const auto& name : result.channels) {
     const auto covered = result.covered_range.find(name);
@@ -24,7 +32,7 @@ void estimateBands(PairCalibrationState& state) {
     state.report("band", double(done++) / result.channels.size(), name);
     result.bands[name] = estimateCurveBand(state.window_sharp.at(name), state.window_blurred.at(name), kernel,
                                            fit_options, result.fits.at(name), covered->second,
-                                           state.options.band);
+                                           state.options.band, ratio_rule);
   }
   result.timings["band"] = secondsSince(start);
   state.report("band", 1);

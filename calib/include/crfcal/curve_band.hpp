@@ -21,6 +21,7 @@
 //    when the data stop well below x = 1.
 // Pure computation: no file I/O, no printing.
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -58,6 +59,11 @@ struct CurveBandOptions {
   // With refit_chosen_model: each refit starts from the whole pair's fit (CrfFitOptions::start; a half's optimum
   // lies next to the whole's), 3 LM runs instead of the fitter's 5–14 from its usual starts.
   bool refits_start_from_fit = true;
+  // When the reported r combines the images' r with the nominal ratio (ratio_evidence.hpp), each refit fits r from
+  // its half, combines it the same way and refits φ there (ReplicateRatioRule below; one more fit per refit). false:
+  // the refits keep their halves' own r (before the fix: the band then carried the images' whole spread of r,
+  // 99 % shape coverage at r = 4 and 8 for a 90 % band; docs/RESULTS.md#curve-band-issue-19).
+  bool replicates_combine_ratio = true;
   std::uint64_t seed = 1;  // the blocks' half-samples (deterministic)
   void check() const;      // throws InvalidInput
 };
@@ -67,11 +73,18 @@ struct CurveBand {
   // Half-width of the SHAPE band (sampling spread and the model term, φ's scale aligned), kCurveSamples samples; meaningful
   // inside `covered`, where it is what two calibrations of one camera should agree within (compare).
   std::vector<double> shape_half_width;
+  // With a ReplicateRatioRule: the same half-width from the halves' refits with their OWN r (the images alone, no
+  // EXIF), model term included; empty otherwise. How well the pair's images fix φ's shape: the verdict's reading
+  // (medianShapeSigma), since a shape that only EXIF's r pins is not fixed by the pair. Not a band of the reported
+  // curve (those refits are not centred on it: they sit at the images' r).
+  std::vector<double> images_ratio_half_width;
   std::pair<double, double> covered{0, 1};  // the covered range the band was built for
   std::pair<double, double> scale_range{1, 1};  // factors s with φ_true ≈ s·φ on the covered range
   std::pair<double, double> exponent_above{1, 1};  // [g_lo, g_hi] used above the covered range
   double level = 0.9;
   int replicates = 0;         // successful refits
+  std::vector<double> replicate_ratios;         // r each refit was fitted at (held by a ReplicateRatioRule, or its own)
+  std::vector<double> replicate_images_ratios;  // r each refit's half alone gave
   int failed_replicates = 0;  // refits that threw (too few pixels in the half-sample)
   double seconds = 0;
   bool empty() const { return lower.empty(); }
@@ -86,9 +99,10 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
                              std::pair<double, double> covered, const CurveBandOptions& options = {},
                              const std::vector<std::vector<double>>& alternatives = {});
 
-// The shape band's median half-width over its covered range, and that half-width as a standard deviation (divided by
-// the band's t quantile at its level and number of refits; the normal quantile without refits). What a verdict can
-// compare with an accuracy target of φ's shape (channel_verdict.hpp). 0 for an empty band.
+// The shape band's median half-width over its covered range, and as a standard deviation (divided by the band's t
+// quantile at its level and number of refits; the normal quantile without refits). medianShapeSigma is what a
+// verdict compares with an accuracy target of φ's shape (channel_verdict.hpp): it reads images_ratio_half_width
+// when the band has one (how well the images alone fix the shape), else shape_half_width. 0 for an empty band.
 double medianShapeHalfWidth(const CurveBand& band);
 double medianShapeSigma(const CurveBand& band);
 
@@ -99,12 +113,32 @@ double medianShapeSigma(const CurveBand& band);
 // enough edge pixels are counted in `failed`. Fewer than 4 blocks: no refits.
 struct HalfSampleRefits {
   std::vector<std::vector<double>> curves;  // φ of each successful refit, kCurveSamples samples
-  std::vector<double> ratios;               // r of each successful refit
+  std::vector<double> ratios;               // r of each successful refit (the held r with a ReplicateRatioRule)
+  std::vector<double> images_ratios;        // r each refit found from its half alone (= ratios without a rule)
+  std::vector<std::vector<double>> images_curves;  // with a rule: φ of each half's own-r fit (before the held-r refit)
   int failed = 0;
 };
+
+// How a half-sample refit obtains r when the reported r is not the fit's own but the images' r combined with the
+// nominal one by their precisions (ratio_evidence.hpp: log r = w·log r_images + (1 − w)·log r_nominal). A bootstrap
+// replicate must run the same estimator as the reported fit, so each half fits r from its images (r_half), forms
+// its own combination log r = log r_reported + w·(log r_half − log r_images) and refits φ with r held there. A
+// replicate that kept its images' r would carry the images' spread of r — along the exponential ambiguity φ^γ,
+// r^γ a spread of φ's exponent — where the reported curve carries only w times it (docs/RESULTS.md#curve-band).
+struct ReplicateRatioRule {
+  double images_weight = 1;  // w ∈ [0, 1] (0: r held at the nominal ratio, 1: the images' r kept)
+  double images_ratio = 1;   // r of the whole pair's images alone
+  double ratio = 1;          // the reported (combined) r
+  void check() const;        // throws InvalidInput
+  double heldRatio(double half_images_ratio) const;
+};
+
+// `ratio_rule`: with it, each half's free-r fit is followed by a refit of φ at the rule's r (start: the free fit),
+// and that refit is the replicate; fit_options.fit_ratio must then be true.
 HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                                     const CrfFitOptions& fit_options, const cv::Mat& used_mask, int replicates,
-                                    int block_size, std::uint64_t seed);
+                                    int block_size, std::uint64_t seed,
+                                    const std::optional<ReplicateRatioRule>& ratio_rule = std::nullopt);
 
 // Random halves of the `block`-pixel blocks holding non-zero pixels of `used` (CV_8U), `count` of them in
 // complementary pairs (every block is in exactly one half of each pair), as CV_8U pixel masks; none for fewer than
@@ -113,9 +147,12 @@ std::vector<cv::Mat> halfSampleMasks(const cv::Mat& used, int block, int count, 
 
 // Refits φ on `options.replicates` half-samples of the blocks that hold `fit`'s used pixels (fit.pixels.used_mask)
 // with the same images, kernel and fit options (CrfFitOptions::pixel_selection), then bandFromReplicates.
+// `ratio_rule`: the reported r is a combination of the images' r with the nominal one (see ReplicateRatioRule);
+// fit_options.fit_ratio must then be true (the halves fit r from their images first).
 CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                             const CrfFitOptions& fit_options, const CrfFitResult& fit,
-                            std::pair<double, double> covered, const CurveBandOptions& options = {});
+                            std::pair<double, double> covered, const CurveBandOptions& options = {},
+                            const std::optional<ReplicateRatioRule>& ratio_rule = std::nullopt);
 
 // How a band fares against a known truth (the benches): x samples of the truth inside the band, counted inside,
 // above and below the band's covered range; inside, also the SHAPE band: |a·truth − φ| ≤ shape_half_width with a
