@@ -16,6 +16,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "option_checks.hpp"
 #include "crfcal/curve_band.hpp"
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
@@ -299,7 +300,7 @@ const BenchRegistration registration(
                        "The joint band's replicates hold each pair's r (ablation: no draws from its uncertainty)");
       command.add_option("--band-replicates", args->band_replicates, "Half-sample refits of the joint band (even; 0: none)")
           ->capture_default_str()
-          ->check(CLI::Range(0, 200));
+          ->check(bandReplicates());
       command.add_option("-o,--output", args->output, "Output directory")->required();
       command.add_flag("--force", args->force, kForceHelp);
       return [args] { return runJointBench(*args); };

@@ -738,7 +738,7 @@ const BenchRegistration registration(
       command.add_option("--band-replicates", args->band_replicates,
                          "Half-sample refits of the band of phi (even; 0: no band, no band table), as calibrate")
           ->capture_default_str()
-          ->check(CLI::Range(0, 200));
+          ->check(bandReplicates());
       command.add_option("--band-replicate-ratio", args->band_replicate_ratio,
                          "r of the band's refits when r came from the evidence: combined (each half combines its own "
                          "r with EXIF as the pair did) or own (each half keeps its images' r)")

@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "command.hpp"
+#include "option_checks.hpp"
 #include "crfcal/bracket_calibration.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
@@ -167,9 +168,7 @@ const CommandRegistration registration(
       command.add_option("--band-replicates", args->options.band.replicates,
                          "Refits on halves of the scene points per channel for the 90 % band of phi (even; 0: no band)")
           ->capture_default_str()
-          ->check(CLI::Range(0, 200) & CLI::Validator([](std::string& v) {
-                    return std::stoi(v) % 2 ? std::string("must be even") : std::string();
-                  }, "EVEN"));
+          ->check(bandReplicates());
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runBracket(*args); };
     });

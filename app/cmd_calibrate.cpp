@@ -538,9 +538,7 @@ const CommandRegistration registration(
                          "Half-sample refits per channel for the 90 % band of phi (even; more: a steadier band, "
                          "each costs about half a fit; 0: no band)")
           ->capture_default_str()
-          ->check(CLI::Range(0, 200) & CLI::Validator([](std::string& v) {
-                    return std::stoi(v) % 2 ? std::string("must be even") : std::string();
-                  }, "EVEN"));
+          ->check(bandReplicates());
       command.add_option("--blurred", args->blurred, "Which argument is the blurred shot: auto, first, second")
           ->check(CLI::IsMember({"auto", "first", "second"}));
       command.add_option("--threads", args->threads, "Worker threads, 0 .. " + std::to_string(kMaxThreads) +

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "command.hpp"
+#include "option_checks.hpp"
 #include "crfcal/chart_calibration.hpp"
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
@@ -429,9 +430,7 @@ const CommandRegistration registration(
                          "With --reference all: refits on halves of the patches per channel for the 90 % band of phi "
                          "(even; 0: no band)")
           ->capture_default_str()
-          ->check(CLI::Range(0, 200) & CLI::Validator([](std::string& v) {
-                    return std::stoi(v) % 2 ? std::string("must be even") : std::string();
-                  }, "EVEN"));
+          ->check(bandReplicates());
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
       return [args] { return runChart(*args); };
     });

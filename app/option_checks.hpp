@@ -31,6 +31,19 @@ inline CLI::Validator exposureRatioOption(bool zero_means_exif = true) {
       zero_means_exif ? "0|0.001..1000" : "0.001..1000");
 }
 
+// Refits of a band of φ (curve_band.hpp, scaled_fit_band.hpp): 0 (no band) to 200, even (they come in complementary
+// halves). Every command with --band-replicates checks it this way; CurveBandOptions::check would refuse the same
+// values later, after the images were read.
+inline CLI::Validator bandReplicates() {
+  return CLI::Range(0, 200) & CLI::Validator(
+                                  [](std::string& text) -> std::string {
+                                    int n = 0;
+                                    if (!CLI::detail::lexical_cast(text, n)) return "'" + text + "' is not an integer";
+                                    return n % 2 ? std::string("must be even") : std::string();
+                                  },
+                                  "EVEN");
+}
+
 // An odd integer (kernel sizes: the kernel has a centre pixel).
 inline CLI::Validator oddNumber() {
   return CLI::Validator(

@@ -13,39 +13,19 @@
 
 #include "crfcal/error.hpp"
 #include "image_codecs_internal.hpp"
+#include "jpeg_error_manager.hpp"
 
 namespace crfcal::io::codec {
 namespace {
 
-struct ErrorState {
-  jpeg_error_mgr base;
-  std::jmp_buf jump;
-  char message[JMSG_LENGTH_MAX] = {};
-  bool premature_end = false;
-};
-
-// libjpeg's default error_exit calls exit(): jump back to the caller instead, with the message.
-void onError(j_common_ptr info) {
-  auto* state = reinterpret_cast<ErrorState*>(info->err);
-  info->err->format_message(info, state->message);
-  std::longjmp(state->jump, 1);
-}
-
-// Warnings are not printed; a stream that ends before the last scanline (JWRN_JPEG_EOF: libjpeg pads it with grey)
-// is remembered so that the file is refused.
-void onMessage(j_common_ptr info, int level) {
-  auto* state = reinterpret_cast<ErrorState*>(info->err);
-  if (level < 0 && info->err->msg_code == JWRN_JPEG_EOF) state->premature_end = true;
-}
+using ErrorState = detail::JpegErrorManager;
 
 struct Decompressor {
   jpeg_decompress_struct info{};
   ErrorState errors;
   bool created = false;
   Decompressor() {
-    info.err = jpeg_std_error(&errors.base);
-    errors.base.error_exit = onError;
-    errors.base.emit_message = onMessage;
+    errors.install(info);
   }
   ~Decompressor() {
     if (created) jpeg_destroy_decompress(&info);
@@ -134,9 +114,7 @@ struct Compressor {
   unsigned char* buffer = nullptr;  // jpeg_mem_dest's output, malloc'ed by libjpeg
   unsigned long size = 0;
   Compressor() {
-    info.err = jpeg_std_error(&errors.base);
-    errors.base.error_exit = onError;
-    errors.base.emit_message = onMessage;
+    errors.install(info);
   }
   ~Compressor() {
     if (created) jpeg_destroy_compress(&info);

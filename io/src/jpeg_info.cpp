@@ -12,29 +12,12 @@
 
 #include "crfcal/error.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "jpeg_error_manager.hpp"
 
 namespace crfcal::io {
 namespace {
 
-struct ErrorManager {
-  jpeg_error_mgr base;
-  std::jmp_buf jump;
-  char message[JMSG_LENGTH_MAX] = {};
-  bool premature_end = false;
-};
-
-void onError(j_common_ptr info) {
-  auto* manager = reinterpret_cast<ErrorManager*>(info->err);
-  info->err->format_message(info, manager->message);
-  std::longjmp(manager->jump, 1);
-}
-
-// libjpeg reports a stream that ends before the last scanline as a warning (JWRN_JPEG_EOF) and pads the rest with
-// grey; remember it so that the caller can refuse the file.
-void onMessage(j_common_ptr info, int level) {
-  auto* manager = reinterpret_cast<ErrorManager*>(info->err);
-  if (level < 0 && info->err->msg_code == JWRN_JPEG_EOF) manager->premature_end = true;
-}
+using ErrorManager = detail::JpegErrorManager;
 
 std::string describe(int components, int h, int v) {
   if (components == 1) return "grey";
@@ -53,8 +36,7 @@ JpegInfo readJpegInfo(const std::filesystem::path& path) {
   if (!file) throw Error("cannot open", path.string());
   jpeg_decompress_struct info{};
   ErrorManager manager;
-  info.err = jpeg_std_error(&manager.base);
-  manager.base.error_exit = onError;
+  manager.install(info);
   // No C++ objects with destructors are created between setjmp and a possible longjmp.
   if (setjmp(manager.jump)) {
     jpeg_destroy_decompress(&info);
@@ -107,8 +89,7 @@ void writeJpegSampled(const std::filesystem::path& path, const cv::Mat& image, i
     if (!file) throw Error("cannot write image", path.string());
     jpeg_compress_struct info{};
     ErrorManager manager;
-    info.err = jpeg_std_error(&manager.base);
-    manager.base.error_exit = onError;
+    manager.install(info);
     // No C++ objects with destructors are created between setjmp and a possible longjmp.
     if (setjmp(manager.jump)) {
       jpeg_destroy_compress(&info);
@@ -139,9 +120,7 @@ void writeJpegSampled(const std::filesystem::path& path, const cv::Mat& image, i
 void requireCompleteJpeg(const unsigned char* data, std::size_t size, const std::filesystem::path& path) {
   jpeg_decompress_struct info{};
   ErrorManager manager;
-  info.err = jpeg_std_error(&manager.base);
-  manager.base.error_exit = onError;
-  manager.base.emit_message = onMessage;
+  manager.install(info);
   // No C++ objects with destructors are created between setjmp and a possible longjmp.
   if (setjmp(manager.jump)) {
     jpeg_destroy_decompress(&info);
