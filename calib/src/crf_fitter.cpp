@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
+#include <optional>
 #include <sstream>
 
 #include "crf_model_selection.hpp"
@@ -151,46 +153,105 @@ void ensureValid(const CrfFitOptions& options, CrfFitResult& result) {
 
 }  // namespace
 
-CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
-                           const CrfFitOptions& options) {
+namespace {
+
+// What a fit prepares before it optimises: the pixels, the noise operators and (moment objectives) the moments. With
+// the moment objectives none of it depends on r, the ratio's prior or the start (CrfFitOptions::fit_ratio,
+// nominal_ratio, ratio_prior_*, start); the seed's intensity objective selects pixels by r (Eq. 23/24).
+// Built in place and never moved: the moments keep a pointer to the noise operators' level operator.
+struct PreparedFit {
+  PreparedFit(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel, const CrfFitOptions& options,
+              Clock::time_point t_start)
+      : base(baseResult(options)),
+        prep(crf_fit::preparePair(sharp, blurred, kernel, options, base)),
+        noise(crf_fit::makeNoiseOperators(prep, options)) {
+    base.timings.prepare_s = secondsSince(t_start);
+    if (options.progress) options.progress(0.1, "prepare");
+    if (options.experimental.objective == CrfObjective::seed_intensity) return;
+    const auto t_moments = Clock::now();
+    const int threads = options.threads > 0 ? options.threads : std::max(1, cv::getNumThreads());
+    problem.emplace(crf_fit::buildMomentProblem(prep, noise, options, threads, base));
+    base.timings.optimise_s = secondsSince(t_moments);  // counted with the optimisation, as before the split
+  }
+  PreparedFit(const PreparedFit&) = delete;
+  PreparedFit& operator=(const PreparedFit&) = delete;
+
+  static CrfFitResult baseResult(const CrfFitOptions& options) {
+    CrfFitResult r;
+    r.nominal_ratio = options.nominal_ratio;
+    r.objective = options.experimental.objective;
+    r.optimizer = options.experimental.optimizer;
+    return r;
+  }
+
+  CrfFitResult base;  // the result's fields the preparation fills (pixels, noise, levels, bins, covered levels, times)
+  crf_fit::Prepared prep;
+  crf_fit::NoiseOperators noise;
+  std::optional<crf_fit::MomentProblem> problem;
+};
+
+// The candidates, the choice and the curve on a prepared fit (the rest of fitInverseCrf).
+CrfFitResult solvePreparedFit(const PreparedFit& prepared, const CrfFitOptions& options, Clock::time_point t_start) {
   using namespace crf_fit;
-  options.check();
-  const auto t_start = Clock::now();
   const ProgressFn report = [&](double fraction, const std::string& stage) {
     if (options.progress) options.progress(fraction, stage);
   };
-  const int threads = options.threads > 0 ? options.threads : std::max(1, cv::getNumThreads());
-  const bool seed_objective = options.experimental.objective == CrfObjective::seed_intensity;
-  CrfFitResult result;
+  CrfFitResult result = prepared.base;
   result.nominal_ratio = options.nominal_ratio;
-  result.objective = options.experimental.objective;
-  result.optimizer = options.experimental.optimizer;
-
-  const Prepared prep = preparePair(sharp, blurred, kernel, options, result);
-  const NoiseOperators noise = makeNoiseOperators(prep, options);
-  result.timings.prepare_s = secondsSince(t_start);
-  report(0.1, "prepare");
-
   const auto t_opt = Clock::now();
   MomentSystem full;  // moments: all the data (the ambiguity check evaluates on it)
-  std::vector<CrfCandidate> candidates;
-  if (seed_objective) {
-    candidates = seedCandidates(prep, noise, options, result, report);
-  } else {
-    const MomentProblem problem = buildMomentProblem(prep, noise, options, threads, result);
-    candidates = momentCandidates(problem, noise, options, result, report, full);
-  }
-  result.timings.optimise_s = secondsSince(t_opt);
+  std::vector<CrfCandidate> candidates =
+      prepared.problem ? momentCandidates(*prepared.problem, prepared.noise, options, result, report, full)
+                       : seedCandidates(prepared.prep, prepared.noise, options, result, report);
+  result.timings.optimise_s += secondsSince(t_opt);
 
   const bool chosen = chooseCandidate(candidates, options, result);
   result.candidates = std::move(candidates);
   result.inverse_crf = sampleValidTable(result.model);
-  if (!seed_objective && chosen && full.h.rows() > 0 && result.energy > 0)
+  if (prepared.problem && chosen && full.h.rows() > 0 && result.energy > 0)
     result.ambiguity_rise = ambiguityRise(full, result.inverse_crf, result.ratio);
   ensureValid(options, result);
   result.timings.total_s = secondsSince(t_start);
   report(1.0, "done");
   return result;
+}
+
+}  // namespace
+
+CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
+                           const CrfFitOptions& options) {
+  options.check();
+  const auto t_start = Clock::now();
+  const PreparedFit prepared(sharp, blurred, kernel, options, t_start);
+  return solvePreparedFit(prepared, options, t_start);
+}
+
+CrfFitAtHeldRatio fitInverseCrfThenHoldRatio(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
+                                             const CrfFitOptions& options,
+                                             const std::function<double(double fitted_ratio)>& held_ratio) {
+  options.check();
+  if (!options.fit_ratio) throw InvalidInput("fit options: holding r after the fit needs fit_ratio");
+  const auto held_options = [&](const CrfFitResult& free_fit) {
+    CrfFitOptions held = options;
+    held.fit_ratio = false;
+    held.nominal_ratio = held_ratio(free_fit.ratio);
+    if (held.start) held.start = CrfFitOptions::Start{free_fit.model, held.nominal_ratio};
+    return held;
+  };
+  if (options.experimental.objective == CrfObjective::seed_intensity) {  // its pixel selection depends on r (Eq. 23/24)
+    CrfFitAtHeldRatio fits;
+    fits.free_ratio = fitInverseCrf(sharp, blurred, kernel, options);
+    fits.held_ratio = fitInverseCrf(sharp, blurred, kernel, held_options(fits.free_ratio));
+    return fits;
+  }
+  const auto t_start = Clock::now();
+  const PreparedFit prepared(sharp, blurred, kernel, options, t_start);
+  CrfFitAtHeldRatio fits;
+  fits.free_ratio = solvePreparedFit(prepared, options, t_start);
+  const CrfFitOptions held = held_options(fits.free_ratio);
+  held.check();
+  fits.held_ratio = solvePreparedFit(prepared, held, Clock::now());
+  return fits;
 }
 
 }  // namespace crfcal

@@ -326,15 +326,15 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
     o.pixel_selection = masks[i];
     o.progress = nullptr;
     try {
-      fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
-      images_ratios[i] = fits[i]->ratio;
-      if (ratio_rule) images_curves[i] = fits[i]->inverse_crf;
-      if (ratio_rule) {  // the half's own combination of r, then φ at it (from the free fit)
-        const double held = ratio_rule->heldRatio(fits[i]->ratio);
-        o.fit_ratio = false;
-        o.nominal_ratio = held;
-        if (o.start) o.start = CrfFitOptions::Start{fits[i]->model, held};
+      if (ratio_rule) {  // the half's own combination of r, then φ at it (from the free fit, the same moments)
+        CrfFitAtHeldRatio both = fitInverseCrfThenHoldRatio(
+            sharp, blurred, kernel, o, [&](double fitted) { return ratio_rule->heldRatio(fitted); });
+        images_ratios[i] = both.free_ratio.ratio;
+        images_curves[i] = std::move(both.free_ratio.inverse_crf);
+        fits[i] = std::move(both.held_ratio);
+      } else {
         fits[i] = fitInverseCrf(sharp, blurred, kernel, o);
+        images_ratios[i] = fits[i]->ratio;
       }
     } catch (const InvalidInput&) {
       fits[i].reset();  // a half without enough edge pixels: the estimate rests on the others

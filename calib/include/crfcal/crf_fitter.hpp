@@ -265,4 +265,19 @@ struct CrfFitResult {
 CrfFitResult fitInverseCrf(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                            const CrfFitOptions& options = {});
 
+// fitInverseCrf with r fitted (options.fit_ratio), then φ fitted again on the same pixels with r held at
+// held_ratio(first fit's r) (nominal_ratio = it, fit_ratio off; a start given in options becomes the first fit's
+// model at that r): the two results of two fitInverseCrf calls, but the pixels, noise operators and moments — which
+// do not depend on r, the ratio's prior or the start with the moment objectives — are prepared once (two thirds of a fit
+// on a 0.1 MP pair; the seed's intensity objective is fitted twice).
+// The band's half-sample refits with the pair's ratio rule (curve_band.hpp) are its use. Throws as fitInverseCrf, and
+// InvalidInput when options.fit_ratio is off.
+struct CrfFitAtHeldRatio {
+  CrfFitResult free_ratio;  // r fitted
+  CrfFitResult held_ratio;  // φ at the held r
+};
+CrfFitAtHeldRatio fitInverseCrfThenHoldRatio(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
+                                             const CrfFitOptions& options,
+                                             const std::function<double(double fitted_ratio)>& held_ratio);
+
 }  // namespace crfcal
