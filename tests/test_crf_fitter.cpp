@@ -353,3 +353,39 @@ TEST(CrfFit, ExperimentalOptionsAreCheckedAndDefaultToCrfcalsMethod) {
 
 }  // namespace
 }  // namespace crfcal
+
+namespace crfcal {
+namespace {
+
+// The band's ratio rule fits φ twice per half (r free, then r held); fitInverseCrfThenHoldRatio shares the prepared
+// pixels and moments between the two. Its results must be those of two separate fits, bit for bit.
+TEST(CrfFit, HoldingTheRatioOnSharedMomentsEqualsTwoSeparateFits) {
+  SimulationOptions sim;
+  sim.ratio = 4;
+  sim.noise_variance = 0.0002;
+  const cv::Mat kernel = test::levinKernel(3);
+  const SimulationResult pair = simulatePair(test::levinImage(2) * 0.2, GammaModel{2.2}, kernel, sim);
+  CrfFitOptions options;
+  options.nominal_ratio = 4;
+  const auto held_ratio = [](double fitted) { return 0.5 * fitted + 2.0; };  // any rule of the fitted r
+  const CrfFitAtHeldRatio shared = fitInverseCrfThenHoldRatio(pair.sharp, pair.blurred, kernel, options, held_ratio);
+
+  const CrfFitResult free_fit = fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
+  CrfFitOptions held = options;
+  held.fit_ratio = false;
+  held.nominal_ratio = held_ratio(free_fit.ratio);
+  const CrfFitResult held_fit = fitInverseCrf(pair.sharp, pair.blurred, kernel, held);
+
+  EXPECT_EQ(shared.free_ratio.ratio, free_fit.ratio);
+  EXPECT_EQ(shared.free_ratio.inverse_crf, free_fit.inverse_crf);
+  EXPECT_EQ(shared.held_ratio.ratio, held_fit.ratio);
+  EXPECT_DOUBLE_EQ(shared.held_ratio.ratio, held_ratio(free_fit.ratio));
+  EXPECT_EQ(shared.held_ratio.inverse_crf, held_fit.inverse_crf);
+  EXPECT_EQ(shared.held_ratio.pixels.used, held_fit.pixels.used);
+  EXPECT_NE(shared.held_ratio.inverse_crf, shared.free_ratio.inverse_crf) << "holding r elsewhere changes φ";
+  options.fit_ratio = false;
+  EXPECT_THROW(fitInverseCrfThenHoldRatio(pair.sharp, pair.blurred, kernel, options, held_ratio), InvalidInput);
+}
+
+}  // namespace
+}  // namespace crfcal
