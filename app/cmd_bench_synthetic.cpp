@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <numeric>
 #include <sstream>
@@ -30,6 +31,7 @@
 #include "crfcal/simex.hpp"
 #include "crfcal/simulation.hpp"
 #include "crfcal/io/atomic_output.hpp"
+#include "crfcal/io/curve_prior_io.hpp"
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/kernel_io.hpp"
 #include "crfcal/io/plot.hpp"
@@ -71,6 +73,9 @@ struct Curve {
   // The top of the x range the curve's own data measure (its table's "data cover x in [lo, hi]" header; 1 for the
   // stand-ins, which are exact everywhere): above it the truth is itself an extrapolation.
   double measured_top = 1;
+  // The learned prior (calib/learned_curve_prior.hpp) from every other curve of the set: what a variant with
+  // `learned_prior_loco` fits this curve's pairs with, so no curve's pairs see a prior that saw the curve.
+  std::shared_ptr<const LearnedCurvePrior> prior_without_this;
 };
 
 struct Variant {
@@ -83,6 +88,8 @@ struct Variant {
   // default's (the corrected score pays at σ ≈ 8 levels and costs at 18–25: docs/RESULTS.md, issue 23)
   double below_sigma_levels = 0;
   double above_sigma_levels = 0;  // and (when > 0) only when σ̂ is above this many levels
+  // The fit gets the learned prior of the other curves (Curve::prior_without_this): leave one camera out.
+  bool learned_prior_loco = false;
 };
 
 // The options one fit of variant v uses on a pair whose sharp shot is `sharp` (CV_64F in [0, 1]).
@@ -144,6 +151,10 @@ std::vector<Variant> allVariants() {
   d = CrfFitOptions{};
   d.fit_ratio = false;
   v.push_back({"default-fixr", "crfcal default with r fixed at its initial value", d});
+  Variant learned{"learned-loco", "crfcal default + the learned prior of the other cameras' curves (calibrate --shoulder learned; leave one camera out)",
+                  CrfFitOptions{}};
+  learned.learned_prior_loco = true;
+  v.push_back(learned);
   return v;
 }
 
@@ -326,6 +337,11 @@ SyntheticSetup loadSetup(const SyntheticArgs& args) {
   for (const auto& p : image_paths) setup.images.push_back(io::readGrayUnit(p));
   for (int k = 1; k <= 8; ++k) setup.kernels.push_back(io::kernelFromSpec("levin:" + std::to_string(k)));
   setup.variants = selectVariants(args);
+  if (std::any_of(setup.variants.begin(), setup.variants.end(), [](const Variant& v) { return v.learned_prior_loco; })) {
+    if (setup.stand_ins) throw InvalidInput("bench: the learned prior needs camera curves (samples/camera_curves or --curves)");
+    const fs::path dir = args.curves.empty() ? io::samplesDirectory() / "camera_curves" : fs::path(args.curves);
+    for (Curve& c : setup.curves) c.prior_without_this = io::learnPriorFromCameraCurves({c.name}, dir);
+  }
   setup.cases = buildCases(args, static_cast<int>(setup.curves.size()), static_cast<int>(setup.images.size()));
   return setup;
 }
@@ -344,6 +360,7 @@ void fitVariant(const Variant& v, const SimulationResult& pair, const cv::Mat& k
   CrfFitOptions options = variantOptions(v, pair.sharp);
   options.threads = 1;
   if (v.true_sigma) options.noise_sigma = out.sigma_true;
+  if (v.learned_prior_loco) options.learned_prior = true_curve.prior_without_this;
   try {
     const CrfFitResult fit = v.simex ? fitInverseCrfSimex(pair.sharp, pair.blurred, kernel, options, *v.simex)
                                      : fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
@@ -750,7 +767,7 @@ const BenchRegistration synthetic_registration(
       command.add_option("--variants", args->variants,
                          "Extra ablation variants: seed+denoise seed+debias seed-fixr moments+debias moments+debias+cue "
                          "moments+cue moments+denoise moments-1pos moments-8pos default+true-sigma default-ggcm "
-                         "default-emor default-ggcm-nm default-fixr simex simex-linear "
+                         "default-emor default-ggcm-nm default-fixr learned-loco simex simex-linear "
                          "corrected-score[:lambda=X][:ridge][:bins=N][:cue][:below=S][:above=S]");
       command.add_option("--threads", args->threads, "Cases in parallel")->check(CLI::Range(1, kMaxThreads));
       command.add_option("--ratio", args->ratio, "Exposure ratio r of the simulated pairs (seed: 1)")
