@@ -172,6 +172,8 @@ TEST(EffectAttribution, OffsetBesideAColourMixIsNamedWithPhiRefittedOnBothSides)
   ASSERT_EQ(offset->parameters.count("complement_gain"), 1u) << "named by the complement check\n" << report.summary();
   EXPECT_GE(offset->parameters.at("complement_gain"), 0.05) << report.summary();
   EXPECT_GE(offset->parameters.at("complement_z"), 3.0) << report.summary();
+  EXPECT_EQ(offset->parameters.count("complement_named"), 1u) << report.summary();
+  EXPECT_NE(report.summary().find("(named here)"), std::string::npos) << report.summary();
   EXPECT_TRUE(report.refit_adopted) << report.refit_rejected_reason;
 }
 

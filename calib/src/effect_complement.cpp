@@ -104,11 +104,9 @@ void complementCheck(EffectSearch& search) {
     search.selected.push_back(best->name);
     EffectEntry& e = search.entry(best->name);
     e.detected = true;
+    e.parameters["complement_named"] = 1;
     e.gain = best_cmp.gain;
     e.statistic = best_cmp.z;
-    e.detail = fmt("named beside the selected model with phi refitted on both sides: held-out drop %.3f, z %.1f ",
-                   best_cmp.gain, best_cmp.z) +
-               "(its linearised test around the selected model's refitted phi did not see it)";
     search.current = search.withSelected();
     search.curves = best_refit.curves;
     search.ratios = best_refit.ratios;
