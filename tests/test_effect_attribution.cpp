@@ -4,15 +4,12 @@
 #include <algorithm>
 
 #include <opencv2/core.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include "crfcal/crf_fitter.hpp"
 #include "crfcal/effect_planting.hpp"
 #include "crfcal/effects.hpp"
-#include "crfcal/io/image_io.hpp"
 #include "crfcal/io/jpeg_roundtrip.hpp"
 #include "crfcal/io/response_io.hpp"
-#include "crfcal/pair_calibration.hpp"
 #include "test_support.hpp"
 
 namespace crfcal {
@@ -132,49 +129,6 @@ TEST(EffectAttribution, CleanUnderexposedJpegPairNamesNoEffect) {
   // signal-dependent noise is what the noise of an underexposed JPEG shot may really be (issue 18 leaves it aside)
   named.erase(std::remove(named.begin(), named.end(), "signal_dependent_noise"), named.end());
   EXPECT_TRUE(named.empty()) << report.summary();
-}
-
-// A colour pair (the bundled window photo at half size, 320×240) with `po` planted, calibrated with --channels rgb
-// and the kernel given.
-EffectReport diagnoseColour(const PlantingOptions& po, const std::string& camera, int kernel) {
-  cv::Mat window = io::readImage(samples() / "effects" / "window.jpg");
-  cv::resize(window, window, cv::Size(), 0.5, 0.5, cv::INTER_AREA);
-  const ResponseModel truth = TableModel{io::readCurveTable(samples() / "camera_curves" / (camera + ".csv"))};
-  const PlantedPair pair = plantEffect(window, truth, levinKernel(kernel), po);
-  PairCalibrationOptions options;
-  options.register_pair = false;
-  options.rgb = true;
-  options.given_kernel = levinKernel(kernel);
-  options.fit.nominal_ratio = pair.exif_ratio;
-  return calibratePair(pair.sharp, pair.blurred, options).effects;
-}
-
-// A colour mix beside per-channel offsets (a real camera's colour matrix, offsets in either shot: forms the detectors
-// do not assume), both at 1.5× their thresholds, r = 1.2. The mix is selected first; the pair corrected for it and φ
-// refitted absorbs the offset (φ bends by ≈ c / (r − 1)), so the offset's linearised test around that φ no longer
-// passes and the forward selection stops with the mix alone — before the complement check this pair was named
-// "channel_mixing". With φ refitted on both sides (mix vs mix + offset), the offset explains the held-back pixels
-// better and is named; the parameters say which stage named it (effect_complement.cpp).
-TEST(EffectAttribution, OffsetBesideAColourMixIsNamedWithPhiRefittedOnBothSides) {
-  PlantingOptions po;
-  po.effect = "channel_mixing";
-  po.form = "held_out";
-  po.strength = 1.5 * plantingThreshold("channel_mixing");
-  po.second_effect = "black_level_offset";
-  po.second_strength = 1.5 * plantingThreshold("black_level_offset");
-  po.ratio = 1.2;
-  po.seed = 8;
-  const EffectReport report = diagnoseColour(po, "NikonD70", 1);
-  const auto detected = report.detected();
-  EXPECT_NE(std::find(detected.begin(), detected.end(), "channel_mixing"), detected.end()) << report.summary();
-  ASSERT_NE(std::find(detected.begin(), detected.end(), "black_level_offset"), detected.end()) << report.summary();
-  const EffectEntry* offset = report.find("black_level_offset");
-  ASSERT_EQ(offset->parameters.count("complement_gain"), 1u) << "named by the complement check\n" << report.summary();
-  EXPECT_GE(offset->parameters.at("complement_gain"), 0.05) << report.summary();
-  EXPECT_GE(offset->parameters.at("complement_z"), 3.0) << report.summary();
-  EXPECT_EQ(offset->parameters.count("complement_named"), 1u) << report.summary();
-  EXPECT_NE(report.summary().find("(named here)"), std::string::npos) << report.summary();
-  EXPECT_TRUE(report.refit_adopted) << report.refit_rejected_reason;
 }
 
 }  // namespace

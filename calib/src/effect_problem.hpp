@@ -15,7 +15,6 @@
 #include <array>
 #include <cstddef>
 #include <map>
-#include <set>
 #include <span>
 #include <string>
 #include <vector>
@@ -298,9 +297,6 @@ struct EffectSearch {
   Spec current;                     // the selected model
   Evaluation current_eval;
   std::vector<std::string> selected;
-  // Level effects whose held-out drop was significant (z ≥ min_z, physical parameters) at some step of the forward
-  // selection (complementCheck hears them again when they were not selected).
-  std::set<std::string> significant_once;
   std::vector<Coefficients> coef;   // the selected model's parameters (describeSelectedModel)
   // B within this margin of saturation_high is treated as saturated (intensity, worst channel; usablePixels).
   double full_scale_margin = 0;
@@ -328,20 +324,6 @@ std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const 
                                               const std::vector<Curve>& cur, const std::vector<Coefficients>& cf,
                                               const std::vector<ChannelFit>& ff, bool with_blur, bool with_noise,
                                               double fixed_ratio);
-
-// Held-out errors of `spec` around the given φ and r with φ held as given (no EMoR re-fit: the curve itself is judged),
-// the parameters fitted on one fold and measured on the other; the problem's samples are the search's pixels.
-struct HeldoutAsGiven {
-  Problem problem;
-  Evaluation eval;
-};
-HeldoutAsGiven heldoutAsGiven(const EffectSearch& search, const std::vector<Curve>& curves,
-                              const std::vector<double>& ratios, const Spec& spec);
-
-// The complement check (effect_complement.cpp): an effect significant at some step of the forward selection but not
-// selected is compared once more, the selected model against the selected model plus it, φ refitted on both
-// sides and judged as given on the held-back pixels; the best one that passes min_gain / min_z is named (repeated).
-void complementCheck(EffectSearch& search);
 
 // The refit guard (effect_refit_guard.cpp): report.fits (the selected model's refit) is kept only when the refit is
 // physically plausible and explains the held-back pixels at least as well as the base fit; else it moves to

@@ -31,7 +31,11 @@ namespace {
 // Held-out Σe² / n of the given φ and r under `spec`, φ held as given (no EMoR re-fit: the curve itself is judged).
 double heldoutError(const EffectSearch& search, const std::vector<Curve>& curves, const std::vector<double>& ratios,
                     const Spec& spec) {
-  const Evaluation ev = heldoutAsGiven(search, curves, ratios, spec).eval;
+  EffectOptions phi_as_given = search.options;
+  phi_as_given.phi_terms = 0;
+  const Problem problem(collect(search.p, curves, ratios, search.K, search.layout, phi_as_given), search.blocks,
+                        search.fine_blocks, search.options.min_derivative);
+  const Evaluation ev = problem.evaluate(spec);
   return ev.count > 0 ? ev.total / static_cast<double>(ev.count) : std::numeric_limits<double>::infinity();
 }
 

@@ -86,7 +86,6 @@ std::string bestCandidate(EffectSearch& search, Evaluation& best_eval) {
     e.statistic = c.cmp.z;
     e.parameters["phi_change"] = phiChange(search, levelEffect(c.name), search.current_eval, c.eval);
     if (!c.plausible) e.detail = "the extended model's parameters are not physical (runaway fit): not considered";
-    if (c.plausible && c.cmp.z >= search.options.min_z) search.significant_once.insert(c.name);
     if (c.passes && (!winner || c.eval.total < winner->eval.total)) winner = &c;
   }
   if (!winner) return {};
@@ -287,7 +286,6 @@ EffectReport diagnoseEffects(const EffectInputs& in, const EffectOptions& option
   collectResiduals(search);
   forwardSelection(search);
   backwardPass(search);
-  complementCheck(search);
   describeSelectedModel(search);
   for (const ModelCheck* check : modelChecks()) check->run(search);
   nameInsteadOfRatio(search);

@@ -64,14 +64,6 @@ std::string EffectReport::summary() const {
                     "", e.runner_up.c_str(), e.runner_up_gain, e.evidence_gain, e.evidence_z);
       s << buffer;
     }
-    const auto complement_gain = e.parameters.find("complement_gain");
-    if (complement_gain != e.parameters.end()) {  // effect_complement.cpp
-      std::snprintf(buffer, sizeof buffer,
-                    "\n  %-24s   heard again beside the selected model, phi refitted on both sides: held-out drop "
-                    "%.4f, z %.2f%s",
-                    "", complement_gain->second, e.parameters.at("complement_z"), e.parameters.count("complement_named") ? " (named here)" : "");
-      s << buffer;
-    }
   }
   if (refit_adopted) {
     char buffer[200];
