@@ -176,15 +176,16 @@ void accumulateSquaredMasses(const Prepared& prep, const std::vector<Tap>& taps,
       for (int f = 0; f < 2; ++f) m.q[f].row(k) += q.row(k * 2 + f);
 }
 
+// squared_masses: also the squared aggregated masses (Moments::q), which only the CUE residuals read.
 Moments buildMoments(const Prepared& prep, const std::vector<int>& bin_of, int bins, int threads,
-                     std::size_t* nonzeros) {
+                     bool squared_masses, std::size_t* nonzeros) {
   const std::vector<Tap> taps = kernelTaps(prep.kernel);
   const int npix = static_cast<int>(prep.pixels.size());
   const int stripes = std::max(1, std::min(threads, npix / 2000 + 1));
   Moments m;
   accumulateSums(prep, taps, bin_of, bins, stripes, m);
   if (nonzeros) *nonzeros = static_cast<std::size_t>(((m.h[0] + m.h[1]).array() != 0).count());
-  accumulateSquaredMasses(prep, taps, bin_of, bins, stripes, m);
+  if (squared_masses) accumulateSquaredMasses(prep, taps, bin_of, bins, stripes, m);
   return m;
 }
 
@@ -282,7 +283,9 @@ MomentProblem buildMomentProblem(const Prepared& prep, const NoiseOperators& noi
   const std::vector<int> bin_of = instrumentBins(prep, options.level_bins, options.position_bins, problem.bin_level_bin);
   const int bins = static_cast<int>(problem.bin_level_bin.size());
   const auto t_mix = std::chrono::steady_clock::now();
-  problem.moments = buildMoments(prep, bin_of, bins, threads, &result.mixture_nonzeros);
+  // The squared masses cost half the sums' time (a scatter per instrument bin) and feed only the CUE ablation.
+  const bool cue = options.experimental.variance_correction;
+  problem.moments = buildMoments(prep, bin_of, bins, threads, cue, &result.mixture_nonzeros);
   result.timings.mixture_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_mix).count();
   problem.level_operator = noise.levelOperator();
   int nonempty = 0;
@@ -304,12 +307,13 @@ MomentSystem MomentProblem::system(int fold) const {
   if (fold < 0) {
     h = m.h[0] + m.h[1];
     n = m.n[0] + m.n[1];
-    q = m.q[0] + m.q[1];  // folds are 16×16 tiles: the cross-fold covariance at tile borders is neglected
+    // folds are 16×16 tiles: the cross-fold covariance at tile borders is neglected
+    if (m.hasSquaredMasses()) q = m.q[0] + m.q[1];
     c = m.count[0] + m.count[1];
   } else {
     h = m.h[fold];
     n = m.n[fold];
-    q = m.q[fold];
+    if (m.hasSquaredMasses()) q = m.q[fold];
     c = m.count[fold];
   }
   // keep non-empty bins only
@@ -319,14 +323,14 @@ MomentSystem MomentProblem::system(int fold) const {
   MomentSystem s;
   s.h.resize(static_cast<int>(rows.size()), m.levels);
   s.n.resize(static_cast<int>(rows.size()), m.levels);
-  s.q.resize(static_cast<int>(rows.size()), m.levels);
+  if (m.hasSquaredMasses()) s.q.resize(static_cast<int>(rows.size()), m.levels);
   for (int i = 0; i < static_cast<int>(rows.size()); ++i) {
     const int k = rows[i];
     const double w = omega[k] / c[k];  // ω_k / n_k on sums
     const double sw = std::sqrt(w);
     s.h.row(i) = sw * h.row(k);
     s.n.row(i) = sw * n.row(k);
-    s.q.row(i) = w * q.row(k);
+    if (m.hasSquaredMasses()) s.q.row(i) = w * q.row(k);
     s.row_scale.push_back(sw);
     s.weight += omega[k];
     const int kb = bin_level_bin[k], L = m.levels;

@@ -45,8 +45,11 @@ struct Moments {
   int levels = 256;
   int bins = 0;
   Eigen::MatrixXd h[2], n[2];  // bins × levels
-  Eigen::MatrixXd q[2];        // squared aggregated masses: Σ_q [I_q = v] c_k(q)², c_k(q) = Σ_{p∈k} K(p − q)
+  // squared aggregated masses: Σ_q [I_q = v] c_k(q)², c_k(q) = Σ_{p∈k} K(p − q); empty unless the CUE ablation
+  // (CrfFitOptions::Experimental::variance_correction) asked for them, the only reader
+  Eigen::MatrixXd q[2];
   Eigen::VectorXd count[2];
+  bool hasSquaredMasses() const { return q[0].size() > 0; }
 };
 
 // The weighted rows of one data selection: residual_k = √ω_k (r Ĥ_k − N_k) · φ.
@@ -54,7 +57,7 @@ struct Moments {
 // intensity-domain residual, Eq. 21), which also removes the φ → 0 / r → 0 degeneracy of irradiance residuals.
 struct MomentSystem {
   Eigen::MatrixXd h, n;  // rows already scaled by √ω
-  Eigen::MatrixXd q;     // squared masses, scaled by ω (variance of the row's noise: r² q · Var g)
+  Eigen::MatrixXd q;     // squared masses, scaled by ω (variance of the row's noise: r² q · Var g); empty without them
   std::vector<double> row_scale;  // √(ω/n) of each row
   std::vector<int> v0, v1;
   double weight = 0;     // Σ ω (normalisation of the energy)
