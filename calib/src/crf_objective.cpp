@@ -192,7 +192,7 @@ Moments buildMoments(const Prepared& prep, const std::vector<int>& bin_of, int b
 // Instruments from B alone: B level bin × bins of B's local min and max over the support (position_bins each).
 // Only non-empty bins are kept (compact ids). Returns the bin of every pixel; bin_level_bin: B-level bin per bin.
 std::vector<int> instrumentBins(const Prepared& prep, int K, int P, std::vector<int>& bin_level_bin) {
-  const LocalRange brange = localRange(prep.blurred_unit, prep.kernel);
+  const LocalRange& brange = prep.blurred_range;
   std::vector<int> bin_of(prep.pixels.size());
   std::vector<int> raw_id(prep.pixels.size());
   for (std::size_t i = 0; i < prep.pixels.size(); ++i) {
