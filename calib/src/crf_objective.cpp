@@ -1,6 +1,7 @@
 #include "crf_objective.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <numeric>
@@ -356,11 +357,31 @@ double momentEnergy(const MomentSystem& sys, const std::vector<double>& f, doubl
   return e / std::max(sys.weight, 1e-300);
 }
 
+namespace {
+std::atomic<std::uint64_t> next_residuals_id{1};
+}  // namespace
+
 MomentResiduals::MomentResiduals(const Curve& curve, const MomentSystem& sys, double r0, bool fit_ratio,
                                  bool with_prior)
-    : curve_(curve), sys_(sys), r0_(r0), fit_ratio_(fit_ratio), with_prior_(with_prior) {}
+    : curve_(curve), sys_(sys), r0_(r0), fit_ratio_(fit_ratio), with_prior_(with_prior), id_(next_residuals_id++) {}
 
+// Levenberg–Marquardt asks for the Jacobian at the trial point it has just accepted, whose residuals it evaluated
+// a moment before: that evaluation's values (φ, H φ, N φ, the slopes, the prior rows) are kept per thread and
+// reused when the point is the same to the bit, so the Jacobian call adds only the Jacobian. Same function, same
+// arithmetic: the same bits as evaluating again (the products H φ and N φ are most of an evaluation's cost).
 bool MomentResiduals::operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res, Eigen::MatrixXd* jac) const {
+  thread_local Evaluation last;
+  const bool reuse = jac && last.owner == id_ && last.p.size() == p.size() && last.p == p;
+  if (!reuse && !evaluate(p, last)) {
+    last.owner = 0;
+    return false;
+  }
+  res = last.res;
+  if (jac) jacobian(p, last, *jac);
+  return true;
+}
+
+bool MomentResiduals::evaluate(const Eigen::VectorXd& p, Evaluation& e) const {
   const MomentSystem& sys = sys_;
   const int L = sys.levels();
   const int d = curve_.dims();
@@ -371,51 +392,76 @@ bool MomentResiduals::operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res,
   const PriorRows priors(sys, fit_ratio_, with_prior_);
   const CensoredResiduals censored(sys.censored, norm);
   const int extra = monotone_rows + priors.count() + censored.count();
-  std::vector<double> f, jf;
-  if (!curve_.values(p.data(), f, jac ? &jf : nullptr)) return false;
+  e.owner = 0;
+  std::vector<double>& f = e.f;
+  if (!curve_.values(p.data(), f, nullptr)) return false;
   if (!priors.defined(f)) return false;
   const double r = fit_ratio_ ? std::exp(p[d]) : r0_;
+  e.r = r;
   Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
-  const Eigen::VectorXd hf = sys.h * fv, nf = sys.n * fv;
-  Eigen::VectorXd slope(rows), raw = r * hf - nf;
+  e.hf = sys.h * fv;
+  const Eigen::VectorXd nf = sys.n * fv;
+  e.slope.resize(rows);
+  e.raw = r * e.hf - nf;
   for (int i = 0; i < rows; ++i) {
-    slope[i] = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
-    if (!(slope[i] > 1e-9)) return false;
+    e.slope[i] = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
+    if (!(e.slope[i] > 1e-9)) return false;
   }
+  Eigen::VectorXd& res = e.res;
   res.resize(rows + extra);
-  res.head(rows) = norm * raw.cwiseQuotient(slope);
-  std::vector<double> g, jg;
+  res.head(rows) = norm * e.raw.cwiseQuotient(e.slope);
   if (emor) {
-    curve_.gridValues(p.data(), g, jac ? &jg : nullptr);
-    for (int i = 0; i + 1 < kGrid; ++i) res[rows + i] = kPenaltyScale * std::max(0.0, g[i] - g[i + 1] + 1e-7);
+    curve_.gridValues(p.data(), e.g, nullptr);
+    for (int i = 0; i + 1 < kGrid; ++i) res[rows + i] = kPenaltyScale * std::max(0.0, e.g[i] - e.g[i + 1] + 1e-7);
   } else if (!monotone(f)) {
     return false;
   }
   const double log_r = fit_ratio_ ? p[d] : 0.0;
-  std::vector<double> prior_scale;
-  priors.residuals(f, log_r, res, rows + monotone_rows, prior_scale);
+  priors.residuals(f, log_r, res, rows + monotone_rows, e.prior_scale);
   const int censored_offset = rows + monotone_rows + priors.count();
   if (!censored.residuals(f, r, res, censored_offset)) return false;
-  if (!jac) return true;
+  e.p = p;
+  e.owner = id_;
+  return true;
+}
+
+void MomentResiduals::jacobian(const Eigen::VectorXd& p, const Evaluation& e, Eigen::MatrixXd& jac) const {
+  const MomentSystem& sys = sys_;
+  const int L = sys.levels();
+  const int d = curve_.dims();
+  const int rows = static_cast<int>(sys.h.rows());
+  const bool emor = curve_.kind() == Curve::kEmor;
+  const double norm = 1.0 / std::sqrt(std::max(sys.weight, 1e-300));
+  const int monotone_rows = emor ? kGrid - 1 : 0;
+  const PriorRows priors(sys, fit_ratio_, with_prior_);
+  const CensoredResiduals censored(sys.censored, norm);
+  const int extra = monotone_rows + priors.count() + censored.count();
+  const std::vector<double>& f = e.f;
+  const Eigen::VectorXd &slope = e.slope, &raw = e.raw, &res = e.res;
+  const double r = e.r;
+  std::vector<double> scratch, jf, jg;
+  curve_.values(p.data(), scratch, &jf);  // valid: evaluate() succeeded at p
   const int np = static_cast<int>(p.size());
-  jac->setZero(rows + extra, np);
+  jac.setZero(rows + extra, np);
   Eigen::Map<const RowMajor> jm(jf.data(), d, L);
   const Eigen::MatrixXd draw = (r * sys.h - sys.n) * jm.transpose();  // rows × d
   for (int i = 0; i < rows; ++i) {
     const double scale = (L - 1) / double(sys.v1[i] - sys.v0[i]);
     for (int j = 0; j < d; ++j) {
       const double dslope = (jm(j, sys.v1[i]) - jm(j, sys.v0[i])) * scale;
-      (*jac)(i, j) = norm * (draw(i, j) / slope[i] - raw[i] * dslope / (slope[i] * slope[i]));
+      jac(i, j) = norm * (draw(i, j) / slope[i] - raw[i] * dslope / (slope[i] * slope[i]));
     }
   }
-  if (fit_ratio_) jac->col(d).head(rows) = norm * r * hf.cwiseQuotient(slope);
-  if (emor)
+  if (fit_ratio_) jac.col(d).head(rows) = norm * r * e.hf.cwiseQuotient(slope);
+  if (emor) {
+    curve_.gridValues(p.data(), scratch, &jg);
+    const std::vector<double>& g = e.g;
     for (int i = 0; i + 1 < kGrid; ++i)
       if (g[i] - g[i + 1] + 1e-7 > 0)
-        for (int j = 0; j < d; ++j) (*jac)(rows + i, j) = kPenaltyScale * (jg[j * kGrid + i] - jg[j * kGrid + i + 1]);
-  priors.jacobian(f, jm, res, rows + monotone_rows, prior_scale, d, *jac);
-  if (censored.count() > 0) censored.jacobian(f, jm, r, fit_ratio_, res, censored_offset, *jac);
-  return true;
+        for (int j = 0; j < d; ++j) jac(rows + i, j) = kPenaltyScale * (jg[j * kGrid + i] - jg[j * kGrid + i + 1]);
+  }
+  priors.jacobian(f, jm, res, rows + monotone_rows, e.prior_scale, d, jac);
+  if (censored.count() > 0) censored.jacobian(f, jm, r, fit_ratio_, res, rows + monotone_rows + priors.count(), jac);
 }
 
 bool cueResiduals(const MomentSystem& sys, const CueModel& cue, const std::vector<double>& f, double r,

@@ -8,6 +8,7 @@
 //    rows Levenberg–Marquardt minimises, with the priors' rows (crf_priors.hpp) appended.
 //  * The continuously-updated GMM residuals (an ablation, CrfFitOptions::Experimental::variance_correction).
 #include <array>
+#include <cstdint>
 #include <utility>
 #include <vector>
 
@@ -122,10 +123,23 @@ class MomentResiduals {
   bool operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res, Eigen::MatrixXd* jac) const;
 
  private:
+  // One evaluation's values that the Jacobian at the same point needs again.
+  struct Evaluation {
+    std::uint64_t owner = 0;  // id_ of the residuals that made it (0: none)
+    Eigen::VectorXd p;
+    std::vector<double> f, g;  // φ on the levels; EMoR on the validity grid
+    double r = 1;
+    Eigen::VectorXd hf, slope, raw, res;
+    std::vector<double> prior_scale;
+  };
+  bool evaluate(const Eigen::VectorXd& p, Evaluation& e) const;
+  void jacobian(const Eigen::VectorXd& p, const Evaluation& e, Eigen::MatrixXd& jac) const;
+
   const Curve& curve_;
   const MomentSystem& sys_;
   double r0_;
   bool fit_ratio_, with_prior_;
+  std::uint64_t id_;
 };
 
 // Continuously-updated GMM (CUE): residual_k = S_k / √V_k(φ, r), S_k = (r Ĥ_k − N_k)·φ the bin sum and
