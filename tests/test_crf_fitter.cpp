@@ -2,6 +2,7 @@
 // saturation handling, validity and rejection of unusable pairs.
 #include <cmath>
 #include <random>
+#include <string>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
@@ -224,6 +225,24 @@ TEST(CrfFit, NoiseHandlingReducesBiasOnNoisySharpImage) {
   EXPECT_NEAR(b.noise_sigma, std::sqrt(0.005), 0.15 * std::sqrt(0.005));
   EXPECT_TRUE(b.noise_sigma_estimated);
   EXPECT_LT(curveRmse(b.model, truth), curveRmse(a.model, truth)) << a.summary() << "\n" << b.summary();
+}
+
+// The moment sums form the squared aggregated masses only for the CUE ablation (experimental.variance_correction),
+// their one reader: with it on, the CUE refinement runs on them and decides the model, and its energy is a
+// chi-square per bin near 1 (the noise of I through the masses is most of each bin's variance; without the masses
+// only the quantisation would be left and the chi-square would be far above 1).
+TEST(CrfFit, CueAblationStillHasItsSquaredMasses) {
+  SimulationOptions sim;
+  sim.noise_variance = 0.005;
+  sim.seed = 5;
+  const SimulationResult pair = simulatePair(test::levinImage(4), GammaModel{2.2}, test::levinKernel(2), sim);
+  CrfFitOptions options;
+  options.experimental.variance_correction = true;
+  const CrfFitResult cue = fitInverseCrf(pair.sharp, pair.blurred, test::levinKernel(2), options);
+  EXPECT_NE(cue.choice_reason.find("CUE"), std::string::npos) << cue.summary();
+  EXPECT_NE(cue.chosen, "fallback") << cue.summary();
+  EXPECT_GT(cue.energy, 0.3) << cue.summary();
+  EXPECT_LT(cue.energy, 3.0) << cue.summary();
 }
 
 // A pair with a 3-px blur and a noisy sharp shot (σ = 5 levels), r = 2: nearly a plain two-exposure pair, where

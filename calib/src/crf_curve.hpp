@@ -41,13 +41,22 @@ class Curve {
   ResponseModel model(const std::vector<double>& x) const;
 
  private:
+  // GGCM's nodes x = v/(n−1) with what does not depend on α: log x and the powers x^j (the Jacobian's factors).
+  struct GgcmNodes {
+    std::vector<double> log_x;   // n (0 where x is 0 or 1: φ is pinned there)
+    std::vector<double> powers;  // n × dims, row-major: x^0, x^1, … as ggcm::gradient forms them
+  };
+  static GgcmNodes ggcmNodes(int n, int dims);
   bool sample(const double* x, int n, const std::vector<double>* basis, std::vector<double>& f,
               std::vector<double>* jac) const;
+  bool sampleGgcm(const double* alpha, int n, const GgcmNodes& nodes, std::vector<double>& f,
+                  std::vector<double>* jac) const;
 
   Kind kind_;
   int levels_;
   int dims_;
   std::vector<double> basis_levels_, basis_grid_;
+  GgcmNodes ggcm_levels_, ggcm_grid_;
 };
 
 }  // namespace crfcal::crf_fit

@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <limits>
+#include <utility>
 #include <variant>
 
 #include "crf_curve.hpp"
@@ -11,6 +13,7 @@
 #include "crf_priors.hpp"
 #include "crfcal/emor.hpp"
 #include "crfcal/ggcm.hpp"
+#include "parallel_jobs.hpp"
 
 namespace crfcal::crf_fit {
 namespace {
@@ -140,22 +143,53 @@ struct MomentFitter {
     }
   }
 
-  // 2-fold cross-validated energy: fit on one checkerboard half (from the whole-data fit), energy on the other.
-  double crossValidate(const Curve& curve, const ModelFit& whole) const {
-    double total = 0;
-    for (int fold = 0; fold < 2; ++fold) {
-      MomentSystem train = problem.system(fold);
-      setExtrapolationPrior(train, options, problem.covered_levels);
-      setRatioPrior(train, residual_variance, options);
-      const MomentSystem test = problem.system(1 - fold);
-      if (train.h.rows() == 0 || test.h.rows() == 0) return std::numeric_limits<double>::quiet_NaN();
-      const ModelFit f = fitWithPriors(curve, train, {whole.x}, whole.ratio);
-      if (f.x.empty()) return kInf;
-      std::vector<double> fv;
-      if (!curve.values(f.x.data(), fv, nullptr)) return kInf;
-      total += momentEnergy(test, fv, f.ratio) * test.weight;
+  // One fold of the 2-fold cross-validation: fit on checkerboard half `fold` (from the whole-data fit), the
+  // energy (times its weight) on the other half. `stop`: the criterion is `energy` whatever the other fold gives
+  // (NaN: a half without rows; ∞: the fit failed).
+  struct FoldEnergy {
+    double energy = 0;
+    bool stop = false;
+  };
+  FoldEnergy foldEnergy(const Curve& curve, const ModelFit& whole, int fold) const {
+    MomentSystem train = problem.system(fold);
+    setExtrapolationPrior(train, options, problem.covered_levels);
+    setRatioPrior(train, residual_variance, options);
+    const MomentSystem test = problem.system(1 - fold);
+    if (train.h.rows() == 0 || test.h.rows() == 0) return {std::numeric_limits<double>::quiet_NaN(), true};
+    const ModelFit f = fitWithPriors(curve, train, {whole.x}, whole.ratio);
+    if (f.x.empty()) return {kInf, true};
+    std::vector<double> fv;
+    if (!curve.values(f.x.data(), fv, nullptr)) return {kInf, true};
+    return {momentEnergy(test, fv, f.ratio) * test.weight, false};
+  }
+
+  // 2-fold cross-validated energies of the given fits (NaN where not asked: an empty curve pointer). The fold fits
+  // are independent: all of them at once, one per core (serial inside a job that already runs in parallel); each
+  // sum is formed in fold order, as the serial loop did, so the criterion is the same to the bit.
+  std::vector<double> crossValidate(const std::vector<std::pair<const Curve*, const ModelFit*>>& fits) const {
+    const int n = static_cast<int>(fits.size());
+    std::vector<FoldEnergy> fold_energy(2 * n);
+    const std::vector<std::exception_ptr> errors = detail::runInParallel(2 * n, [&](int job) {
+      const auto& [curve, whole] = fits[static_cast<std::size_t>(job / 2)];
+      if (curve) fold_energy[job] = foldEnergy(*curve, *whole, job % 2);
+    });
+    for (const std::exception_ptr& error : errors)
+      if (error) std::rethrow_exception(error);
+    std::vector<double> criterion(n, std::numeric_limits<double>::quiet_NaN());
+    for (int i = 0; i < n; ++i) {
+      if (!fits[i].first) continue;
+      double total = 0;
+      for (int fold = 0; fold < 2; ++fold) {
+        const FoldEnergy& e = fold_energy[2 * i + fold];
+        if (e.stop) {  // as the serial loop, which returned at the first failed fold
+          total = e.energy;
+          break;
+        }
+        total += e.energy;
+      }
+      criterion[i] = total;
     }
-    return total;
+    return criterion;
   }
 };
 
@@ -220,15 +254,13 @@ std::vector<CrfCandidate> momentCandidates(const MomentProblem& problem, const N
   if (corrected) fitter.refineCue(full, noise, ratio, want_emor, want_ggcm, fit_e, fit_g);
   // energies are per unit weight: (cost · weight) / weight — LM cost is already normalised
   const bool cross_validate = options.model == CrfModelChoice::automatic && !corrected;
+  const bool has_e = want_emor && !fit_e.x.empty(), has_g = want_ggcm && !fit_g.x.empty();
+  const bool cv_e = cross_validate && has_e && fit_e.valid, cv_g = cross_validate && has_g && fit_g.valid;
+  const std::vector<double> cv = fitter.crossValidate({{cv_e ? &fitter.emor_curve : nullptr, &fit_e},
+                                                       {cv_g ? &fitter.ggcm_curve : nullptr, &fit_g}});
   std::vector<CrfCandidate> candidates;
-  if (want_emor && !fit_e.x.empty())
-    candidates.push_back(makeCandidate(fitter.emor_curve, fit_e,
-                                       cross_validate && fit_e.valid ? fitter.crossValidate(fitter.emor_curve, fit_e)
-                                                                     : fit_e.energy));
-  if (want_ggcm && !fit_g.x.empty())
-    candidates.push_back(makeCandidate(fitter.ggcm_curve, fit_g,
-                                       cross_validate && fit_g.valid ? fitter.crossValidate(fitter.ggcm_curve, fit_g)
-                                                                     : fit_g.energy));
+  if (has_e) candidates.push_back(makeCandidate(fitter.emor_curve, fit_e, cv_e ? cv[0] : fit_e.energy));
+  if (has_g) candidates.push_back(makeCandidate(fitter.ggcm_curve, fit_g, cv_g ? cv[1] : fit_g.energy));
   return candidates;
 }
 

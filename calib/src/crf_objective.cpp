@@ -1,6 +1,7 @@
 #include "crf_objective.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <numeric>
@@ -176,22 +177,23 @@ void accumulateSquaredMasses(const Prepared& prep, const std::vector<Tap>& taps,
       for (int f = 0; f < 2; ++f) m.q[f].row(k) += q.row(k * 2 + f);
 }
 
+// squared_masses: also the squared aggregated masses (Moments::q), which only the CUE residuals read.
 Moments buildMoments(const Prepared& prep, const std::vector<int>& bin_of, int bins, int threads,
-                     std::size_t* nonzeros) {
+                     bool squared_masses, std::size_t* nonzeros) {
   const std::vector<Tap> taps = kernelTaps(prep.kernel);
   const int npix = static_cast<int>(prep.pixels.size());
   const int stripes = std::max(1, std::min(threads, npix / 2000 + 1));
   Moments m;
   accumulateSums(prep, taps, bin_of, bins, stripes, m);
   if (nonzeros) *nonzeros = static_cast<std::size_t>(((m.h[0] + m.h[1]).array() != 0).count());
-  accumulateSquaredMasses(prep, taps, bin_of, bins, stripes, m);
+  if (squared_masses) accumulateSquaredMasses(prep, taps, bin_of, bins, stripes, m);
   return m;
 }
 
 // Instruments from B alone: B level bin × bins of B's local min and max over the support (position_bins each).
 // Only non-empty bins are kept (compact ids). Returns the bin of every pixel; bin_level_bin: B-level bin per bin.
 std::vector<int> instrumentBins(const Prepared& prep, int K, int P, std::vector<int>& bin_level_bin) {
-  const LocalRange brange = localRange(prep.blurred_unit, prep.kernel);
+  const LocalRange& brange = prep.blurred_range;
   std::vector<int> bin_of(prep.pixels.size());
   std::vector<int> raw_id(prep.pixels.size());
   for (std::size_t i = 0; i < prep.pixels.size(); ++i) {
@@ -282,7 +284,9 @@ MomentProblem buildMomentProblem(const Prepared& prep, const NoiseOperators& noi
   const std::vector<int> bin_of = instrumentBins(prep, options.level_bins, options.position_bins, problem.bin_level_bin);
   const int bins = static_cast<int>(problem.bin_level_bin.size());
   const auto t_mix = std::chrono::steady_clock::now();
-  problem.moments = buildMoments(prep, bin_of, bins, threads, &result.mixture_nonzeros);
+  // The squared masses cost half the sums' time (a scatter per instrument bin) and feed only the CUE ablation.
+  const bool cue = options.experimental.variance_correction;
+  problem.moments = buildMoments(prep, bin_of, bins, threads, cue, &result.mixture_nonzeros);
   result.timings.mixture_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_mix).count();
   problem.level_operator = noise.levelOperator();
   int nonempty = 0;
@@ -304,12 +308,13 @@ MomentSystem MomentProblem::system(int fold) const {
   if (fold < 0) {
     h = m.h[0] + m.h[1];
     n = m.n[0] + m.n[1];
-    q = m.q[0] + m.q[1];  // folds are 16×16 tiles: the cross-fold covariance at tile borders is neglected
+    // folds are 16×16 tiles: the cross-fold covariance at tile borders is neglected
+    if (m.hasSquaredMasses()) q = m.q[0] + m.q[1];
     c = m.count[0] + m.count[1];
   } else {
     h = m.h[fold];
     n = m.n[fold];
-    q = m.q[fold];
+    if (m.hasSquaredMasses()) q = m.q[fold];
     c = m.count[fold];
   }
   // keep non-empty bins only
@@ -319,14 +324,14 @@ MomentSystem MomentProblem::system(int fold) const {
   MomentSystem s;
   s.h.resize(static_cast<int>(rows.size()), m.levels);
   s.n.resize(static_cast<int>(rows.size()), m.levels);
-  s.q.resize(static_cast<int>(rows.size()), m.levels);
+  if (m.hasSquaredMasses()) s.q.resize(static_cast<int>(rows.size()), m.levels);
   for (int i = 0; i < static_cast<int>(rows.size()); ++i) {
     const int k = rows[i];
     const double w = omega[k] / c[k];  // ω_k / n_k on sums
     const double sw = std::sqrt(w);
     s.h.row(i) = sw * h.row(k);
     s.n.row(i) = sw * n.row(k);
-    s.q.row(i) = w * q.row(k);
+    if (m.hasSquaredMasses()) s.q.row(i) = w * q.row(k);
     s.row_scale.push_back(sw);
     s.weight += omega[k];
     const int kb = bin_level_bin[k], L = m.levels;
@@ -352,11 +357,31 @@ double momentEnergy(const MomentSystem& sys, const std::vector<double>& f, doubl
   return e / std::max(sys.weight, 1e-300);
 }
 
+namespace {
+std::atomic<std::uint64_t> next_residuals_id{1};
+}  // namespace
+
 MomentResiduals::MomentResiduals(const Curve& curve, const MomentSystem& sys, double r0, bool fit_ratio,
                                  bool with_prior)
-    : curve_(curve), sys_(sys), r0_(r0), fit_ratio_(fit_ratio), with_prior_(with_prior) {}
+    : curve_(curve), sys_(sys), r0_(r0), fit_ratio_(fit_ratio), with_prior_(with_prior), id_(next_residuals_id++) {}
 
+// Levenberg–Marquardt asks for the Jacobian at the trial point it has just accepted, whose residuals it evaluated
+// a moment before: that evaluation's values (φ, H φ, N φ, the slopes, the prior rows) are kept per thread and
+// reused when the point is the same to the bit, so the Jacobian call adds only the Jacobian. Same function, same
+// arithmetic: the same bits as evaluating again (the products H φ and N φ are most of an evaluation's cost).
 bool MomentResiduals::operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res, Eigen::MatrixXd* jac) const {
+  thread_local Evaluation last;
+  const bool reuse = jac && last.owner == id_ && last.p.size() == p.size() && last.p == p;
+  if (!reuse && !evaluate(p, last)) {
+    last.owner = 0;
+    return false;
+  }
+  res = last.res;
+  if (jac) jacobian(p, last, *jac);
+  return true;
+}
+
+bool MomentResiduals::evaluate(const Eigen::VectorXd& p, Evaluation& e) const {
   const MomentSystem& sys = sys_;
   const int L = sys.levels();
   const int d = curve_.dims();
@@ -367,51 +392,76 @@ bool MomentResiduals::operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res,
   const PriorRows priors(sys, fit_ratio_, with_prior_);
   const CensoredResiduals censored(sys.censored, norm);
   const int extra = monotone_rows + priors.count() + censored.count();
-  std::vector<double> f, jf;
-  if (!curve_.values(p.data(), f, jac ? &jf : nullptr)) return false;
+  e.owner = 0;
+  std::vector<double>& f = e.f;
+  if (!curve_.values(p.data(), f, nullptr)) return false;
   if (!priors.defined(f)) return false;
   const double r = fit_ratio_ ? std::exp(p[d]) : r0_;
+  e.r = r;
   Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
-  const Eigen::VectorXd hf = sys.h * fv, nf = sys.n * fv;
-  Eigen::VectorXd slope(rows), raw = r * hf - nf;
+  e.hf = sys.h * fv;
+  const Eigen::VectorXd nf = sys.n * fv;
+  e.slope.resize(rows);
+  e.raw = r * e.hf - nf;
   for (int i = 0; i < rows; ++i) {
-    slope[i] = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
-    if (!(slope[i] > 1e-9)) return false;
+    e.slope[i] = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
+    if (!(e.slope[i] > 1e-9)) return false;
   }
+  Eigen::VectorXd& res = e.res;
   res.resize(rows + extra);
-  res.head(rows) = norm * raw.cwiseQuotient(slope);
-  std::vector<double> g, jg;
+  res.head(rows) = norm * e.raw.cwiseQuotient(e.slope);
   if (emor) {
-    curve_.gridValues(p.data(), g, jac ? &jg : nullptr);
-    for (int i = 0; i + 1 < kGrid; ++i) res[rows + i] = kPenaltyScale * std::max(0.0, g[i] - g[i + 1] + 1e-7);
+    curve_.gridValues(p.data(), e.g, nullptr);
+    for (int i = 0; i + 1 < kGrid; ++i) res[rows + i] = kPenaltyScale * std::max(0.0, e.g[i] - e.g[i + 1] + 1e-7);
   } else if (!monotone(f)) {
     return false;
   }
   const double log_r = fit_ratio_ ? p[d] : 0.0;
-  std::vector<double> prior_scale;
-  priors.residuals(f, log_r, res, rows + monotone_rows, prior_scale);
+  priors.residuals(f, log_r, res, rows + monotone_rows, e.prior_scale);
   const int censored_offset = rows + monotone_rows + priors.count();
   if (!censored.residuals(f, r, res, censored_offset)) return false;
-  if (!jac) return true;
+  e.p = p;
+  e.owner = id_;
+  return true;
+}
+
+void MomentResiduals::jacobian(const Eigen::VectorXd& p, const Evaluation& e, Eigen::MatrixXd& jac) const {
+  const MomentSystem& sys = sys_;
+  const int L = sys.levels();
+  const int d = curve_.dims();
+  const int rows = static_cast<int>(sys.h.rows());
+  const bool emor = curve_.kind() == Curve::kEmor;
+  const double norm = 1.0 / std::sqrt(std::max(sys.weight, 1e-300));
+  const int monotone_rows = emor ? kGrid - 1 : 0;
+  const PriorRows priors(sys, fit_ratio_, with_prior_);
+  const CensoredResiduals censored(sys.censored, norm);
+  const int extra = monotone_rows + priors.count() + censored.count();
+  const std::vector<double>& f = e.f;
+  const Eigen::VectorXd &slope = e.slope, &raw = e.raw, &res = e.res;
+  const double r = e.r;
+  std::vector<double> scratch, jf, jg;
+  curve_.values(p.data(), scratch, &jf);  // valid: evaluate() succeeded at p
   const int np = static_cast<int>(p.size());
-  jac->setZero(rows + extra, np);
+  jac.setZero(rows + extra, np);
   Eigen::Map<const RowMajor> jm(jf.data(), d, L);
   const Eigen::MatrixXd draw = (r * sys.h - sys.n) * jm.transpose();  // rows × d
   for (int i = 0; i < rows; ++i) {
     const double scale = (L - 1) / double(sys.v1[i] - sys.v0[i]);
     for (int j = 0; j < d; ++j) {
       const double dslope = (jm(j, sys.v1[i]) - jm(j, sys.v0[i])) * scale;
-      (*jac)(i, j) = norm * (draw(i, j) / slope[i] - raw[i] * dslope / (slope[i] * slope[i]));
+      jac(i, j) = norm * (draw(i, j) / slope[i] - raw[i] * dslope / (slope[i] * slope[i]));
     }
   }
-  if (fit_ratio_) jac->col(d).head(rows) = norm * r * hf.cwiseQuotient(slope);
-  if (emor)
+  if (fit_ratio_) jac.col(d).head(rows) = norm * r * e.hf.cwiseQuotient(slope);
+  if (emor) {
+    curve_.gridValues(p.data(), scratch, &jg);
+    const std::vector<double>& g = e.g;
     for (int i = 0; i + 1 < kGrid; ++i)
       if (g[i] - g[i + 1] + 1e-7 > 0)
-        for (int j = 0; j < d; ++j) (*jac)(rows + i, j) = kPenaltyScale * (jg[j * kGrid + i] - jg[j * kGrid + i + 1]);
-  priors.jacobian(f, jm, res, rows + monotone_rows, prior_scale, d, *jac);
-  if (censored.count() > 0) censored.jacobian(f, jm, r, fit_ratio_, res, censored_offset, *jac);
-  return true;
+        for (int j = 0; j < d; ++j) jac(rows + i, j) = kPenaltyScale * (jg[j * kGrid + i] - jg[j * kGrid + i + 1]);
+  }
+  priors.jacobian(f, jm, res, rows + monotone_rows, e.prior_scale, d, jac);
+  if (censored.count() > 0) censored.jacobian(f, jm, r, fit_ratio_, res, rows + monotone_rows + priors.count(), jac);
 }
 
 bool cueResiduals(const MomentSystem& sys, const CueModel& cue, const std::vector<double>& f, double r,

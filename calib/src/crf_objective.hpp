@@ -8,6 +8,7 @@
 //    rows Levenberg–Marquardt minimises, with the priors' rows (crf_priors.hpp) appended.
 //  * The continuously-updated GMM residuals (an ablation, CrfFitOptions::Experimental::variance_correction).
 #include <array>
+#include <cstdint>
 #include <utility>
 #include <vector>
 
@@ -45,8 +46,11 @@ struct Moments {
   int levels = 256;
   int bins = 0;
   Eigen::MatrixXd h[2], n[2];  // bins × levels
-  Eigen::MatrixXd q[2];        // squared aggregated masses: Σ_q [I_q = v] c_k(q)², c_k(q) = Σ_{p∈k} K(p − q)
+  // squared aggregated masses: Σ_q [I_q = v] c_k(q)², c_k(q) = Σ_{p∈k} K(p − q); empty unless the CUE ablation
+  // (CrfFitOptions::Experimental::variance_correction) asked for them, the only reader
+  Eigen::MatrixXd q[2];
   Eigen::VectorXd count[2];
+  bool hasSquaredMasses() const { return q[0].size() > 0; }
 };
 
 // The weighted rows of one data selection: residual_k = √ω_k (r Ĥ_k − N_k) · φ.
@@ -54,7 +58,7 @@ struct Moments {
 // intensity-domain residual, Eq. 21), which also removes the φ → 0 / r → 0 degeneracy of irradiance residuals.
 struct MomentSystem {
   Eigen::MatrixXd h, n;  // rows already scaled by √ω
-  Eigen::MatrixXd q;     // squared masses, scaled by ω (variance of the row's noise: r² q · Var g)
+  Eigen::MatrixXd q;     // squared masses, scaled by ω (variance of the row's noise: r² q · Var g); empty without them
   std::vector<double> row_scale;  // √(ω/n) of each row
   std::vector<int> v0, v1;
   double weight = 0;     // Σ ω (normalisation of the energy)
@@ -119,10 +123,23 @@ class MomentResiduals {
   bool operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res, Eigen::MatrixXd* jac) const;
 
  private:
+  // One evaluation's values that the Jacobian at the same point needs again.
+  struct Evaluation {
+    std::uint64_t owner = 0;  // id_ of the residuals that made it (0: none)
+    Eigen::VectorXd p;
+    std::vector<double> f, g;  // φ on the levels; EMoR on the validity grid
+    double r = 1;
+    Eigen::VectorXd hf, slope, raw, res;
+    std::vector<double> prior_scale;
+  };
+  bool evaluate(const Eigen::VectorXd& p, Evaluation& e) const;
+  void jacobian(const Eigen::VectorXd& p, const Evaluation& e, Eigen::MatrixXd& jac) const;
+
   const Curve& curve_;
   const MomentSystem& sys_;
   double r0_;
   bool fit_ratio_, with_prior_;
+  std::uint64_t id_;
 };
 
 // Continuously-updated GMM (CUE): residual_k = S_k / √V_k(φ, r), S_k = (r Ĥ_k − N_k)·φ the bin sum and

@@ -110,7 +110,7 @@ cv::Mat selectionWeight(const Prepared& prep, const CrfFitOptions& options) {
       spread.copyTo(weight, spread > options.experimental.tau2);  // Eq. 24
     }
   } else {
-    const LocalRange range = localRange(prep.blurred_unit, kernel);
+    const LocalRange& range = prep.blurred_range;
     const cv::Mat spread = range.max - range.min;
     spread.copyTo(weight, spread > options.edge_threshold);
   }
@@ -194,6 +194,8 @@ Prepared preparePair(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat
   if (options.experimental.noise == NoiseHandling::denoise) prep.sharp_used = denoiseSharp(prep.sharp_unit, prep.sigma);
   prep.sharp = toLevels(prep.sharp_used, L);
   prep.blurred = toLevels(prep.blurred_unit, L);
+  if (options.experimental.objective != CrfObjective::seed_intensity)
+    prep.blurred_range = localRange(prep.blurred_unit, prep.kernel);
 
   // Pixel accounting: border, saturation (dilated by the support), edges.
   CrfPixelAccounting& acc = result.pixels;

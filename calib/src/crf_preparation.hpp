@@ -7,6 +7,7 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
+#include "crfcal/blur_model.hpp"
 #include "crfcal/crf_fitter.hpp"
 #include "crfcal/level_mixture.hpp"
 #include "crfcal/noise_debias.hpp"
@@ -19,6 +20,9 @@ struct Prepared {
   cv::Mat sharp_unit, blurred_unit;
   cv::Mat sharp_used;              // sharp_unit, or its denoised version (NoiseHandling::denoise)
   LevelImage sharp, blurred;       // sharp_used and blurred_unit on the level grid
+  // B's local min/max over K's support (moment objectives only): the pixel selection and the instrument bins both
+  // read it, so it is formed once per fit.
+  LocalRange blurred_range;
   double sigma = 0;                // σ of I's noise (given or estimated; mean over levels when per level)
   std::vector<cv::Point> pixels;
   std::vector<double> seed_weight;  // W_p (seed objective)

@@ -243,8 +243,33 @@ std::vector<Samples> collect(const Prepared& p, const std::vector<Curve>& curves
 
 // ---- the residual model --------------------------------------------------------------------------------------------
 
+Problem::DesignRows Problem::designRows(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx) const {
+  DesignRows rows;
+  if (idx.empty()) return rows;
+  double buffer[48], t;
+  rows.cols = row(s, idx[0], spec, buffer, t);
+  rows.values.resize(idx.size() * static_cast<std::size_t>(rows.cols));
+  rows.target.resize(idx.size());
+  rows.position.assign(s.size(), -1);
+  for (std::size_t k = 0; k < idx.size(); ++k) {
+    row(s, idx[k], spec, rows.values.data() + k * rows.cols, rows.target[k]);
+    rows.position[idx[k]] = static_cast<int>(k);
+  }
+  return rows;
+}
+
+const double* Problem::designRow(const Samples& s, std::size_t i, const Spec& spec, const DesignRows* rows,
+                                 double* buffer, double& t) const {
+  if (rows) {
+    t = rows->targetAt(i);
+    return rows->at(i);
+  }
+  row(s, i, spec, buffer, t);
+  return buffer;
+}
+
 Eigen::VectorXd Problem::linearStart(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
-                                     int cols) const {
+                                     int cols, const DesignRows* rows) const {
   double buffer[48], t;
   const int terms = static_cast<int>(s.Dh.size());
   Eigen::VectorXd theta = Eigen::VectorXd::Zero(cols);
@@ -252,11 +277,11 @@ Eigen::VectorXd Problem::linearStart(const Samples& s, const Spec& spec, const s
   Eigen::MatrixXd A = Eigen::MatrixXd::Zero(lin, lin);
   Eigen::VectorXd b = Eigen::VectorXd::Zero(lin);
   for (auto i : use) {
-    row(s, i, spec, buffer, t);
+    const double* x = designRow(s, i, spec, rows, buffer, t);
     const double w = weight(s, i, nullptr), w2 = w * w;
     for (int a = 0; a < lin; ++a) {
-      b(a) += w2 * buffer[a] * t;
-      for (int c = 0; c <= a; ++c) A(a, c) += w2 * buffer[a] * buffer[c];
+      b(a) += w2 * x[a] * t;
+      for (int c = 0; c <= a; ++c) A(a, c) += w2 * x[a] * x[c];
     }
   }
   for (int a = 0; a < lin; ++a)
@@ -270,7 +295,7 @@ Eigen::VectorXd Problem::linearStart(const Samples& s, const Spec& spec, const s
 
 // Levenberg–Marquardt on r_i = w_i(θ) (t_i − c_i·θ): w depends on the φ re-fit through φ'(B).
 void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
-                                 Eigen::VectorXd& theta) const {
+                                 Eigen::VectorXd& theta, const DesignRows* rows) const {
   const int cols = static_cast<int>(theta.size());
   const int terms = static_cast<int>(s.Dh.size());
   const Eigen::Index n = static_cast<Eigen::Index>(use.size());
@@ -282,8 +307,8 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
   for (Eigen::Index k = 0; k < n; ++k) {
     const std::size_t i = use[static_cast<std::size_t>(k)];
     double t = 0;
-    row(s, i, spec, buffer, t);
-    for (int a = 0; a < cols; ++a) C(k, a) = buffer[a];
+    const double* x = designRow(s, i, spec, rows, buffer, t);
+    for (int a = 0; a < cols; ++a) C(k, a) = x[a];
     target(k) = t;
     d0(k) = s.d[i];
     for (int j = 0; j < terms; ++j) Dh(k, j) = s.Dh[static_cast<std::size_t>(j)][i];
@@ -334,9 +359,9 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
 // the φ re-fit; without φ terms one linear solve). Samples on B's plateau (clip level `clip`, B intensity) are
 // censored: they do not enter the fit.
 ChannelFit Problem::fitLevel(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx, double clip,
-                             const Eigen::VectorXd* start) const {
+                             const Eigen::VectorXd* start, const DesignRows* rows) const {
   double buffer[48], t;
-  const int cols = row(s, idx[0], spec, buffer, t);
+  const int cols = rows ? rows->cols : row(s, idx[0], spec, buffer, t);
   const int terms = static_cast<int>(s.Dh.size());
   std::vector<std::size_t> use;
   for (auto i : idx)
@@ -348,10 +373,10 @@ ChannelFit Problem::fitLevel(const Samples& s, const Spec& spec, const std::vect
   if (start && start->size() == cols && start->allFinite()) {
     theta = *start;
   } else {
-    theta = linearStart(s, spec, use, cols);
+    theta = linearStart(s, spec, use, cols, rows);
     if (!theta.allFinite()) return f;
   }
-  if (terms > 0) levenbergMarquardt(s, spec, use, theta);
+  if (terms > 0) levenbergMarquardt(s, spec, use, theta, rows);
   f.theta = theta;
   f.clip = clip;
   f.ok = theta.allFinite();
@@ -373,14 +398,16 @@ ChannelFit Problem::fit(const Samples& s, const Spec& spec, int fold, const Eige
   for (double q : {1.0, 0.999, 0.995, 0.99, 0.98, 0.97, 0.95, 0.93, 0.9, 0.85, 0.8})
     clips.push_back(y[static_cast<std::size_t>(q * (y.size() - 1))]);
   clips.erase(std::unique(clips.begin(), clips.end()), clips.end());
+  // Every plateau level's fit and error reads the same design rows: formed once (12 fits × 2 passes before).
+  const DesignRows rows = designRows(s, spec, idx);
   double best_error = std::numeric_limits<double>::infinity();
   for (double clip : clips) {
     if (!(clip > 0)) continue;
-    const ChannelFit f = fitLevel(s, spec, idx, clip, start);
+    const ChannelFit f = fitLevel(s, spec, idx, clip, start, &rows);
     if (!f.ok) continue;
     double error = 0;
     for (auto i : idx) {
-      const double e = residual(s, i, spec, f);
+      const double e = residualOfRow(s, i, f, rows.at(i), rows.cols, rows.targetAt(i));
       error += e * e;
     }
     if (error < best_error) {
@@ -396,8 +423,13 @@ ChannelFit Problem::fit(const Samples& s, const Spec& spec, int fold, const Eige
 double Problem::residual(const Samples& s, std::size_t i, const Spec& spec, const ChannelFit& f) const {
   double buffer[48], t;
   const int cols = row(s, i, spec, buffer, t);
+  return residualOfRow(s, i, f, buffer, cols, t);
+}
+
+double Problem::residualOfRow(const Samples& s, std::size_t i, const ChannelFit& f, const double* x, int cols,
+                              double t) const {
   double p = 0;
-  for (int a = 0; a < cols; ++a) p += f.theta(a) * buffer[a];
+  for (int a = 0; a < cols; ++a) p += f.theta(a) * x[a];
   const double w = weight(s, i, &f.theta);
   if (!(f.clip > 0 && f.clip <= 1)) return w * (t - p);
   const int terms = static_cast<int>(s.Dh.size());

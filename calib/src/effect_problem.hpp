@@ -193,13 +193,28 @@ class Problem {
     return 1.0 / std::max(d, min_derivative_);
   }
 
+  // The design rows (row()) and targets of some samples, formed once where several fits read them (the plateau
+  // grid of fit()): the same values row() gives, so the fits are the same to the bit.
+  struct DesignRows {
+    int cols = 0;
+    std::vector<double> values, target;  // rows × cols, rows
+    std::vector<int> position;           // sample index → row (−1: not formed)
+    const double* at(std::size_t i) const { return values.data() + static_cast<std::size_t>(position[i]) * cols; }
+    double targetAt(std::size_t i) const { return target[static_cast<std::size_t>(position[i])]; }
+  };
+  DesignRows designRows(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx) const;
+
   // Least squares of the intensity-scaled residuals on the samples `idx`, B's plateau at `clip` censored.
+  // `rows`: the samples' design rows already formed (null: formed here).
   ChannelFit fitLevel(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx, double clip,
-                      const Eigen::VectorXd* start = nullptr) const;
+                      const Eigen::VectorXd* start = nullptr, const DesignRows* rows = nullptr) const;
   // One channel on one fold (−1: all samples); clipping: the plateau level chosen on a grid of B's quantiles.
   ChannelFit fit(const Samples& s, const Spec& spec, int fold, const Eigen::VectorXd* start = nullptr) const;
   // Residual φ(B) − Ŷ in intensity units (clipping: two-sided against the plateau).
   double residual(const Samples& s, std::size_t i, const Spec& spec, const ChannelFit& f) const;
+  // The same from the sample's design row `x` (cols entries) and target t.
+  double residualOfRow(const Samples& s, std::size_t i, const ChannelFit& f, const double* x, int cols,
+                       double t) const;
   // Fits of every channel on one fold (−1: all samples), coupled through X_d with mixing.
   std::vector<ChannelFit> fitAll(const Spec& spec, int fold, std::vector<std::vector<double>>& xs,
                                  const std::vector<Eigen::VectorXd>& starts) const;
@@ -217,10 +232,14 @@ class Problem {
 
  private:
   // The weighted linear solution without the φ terms (weights of φ̂): the start of the Levenberg–Marquardt.
-  Eigen::VectorXd linearStart(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use, int cols) const;
+  Eigen::VectorXd linearStart(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use, int cols,
+                              const DesignRows* rows) const;
   void levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
-                          Eigen::VectorXd& theta) const;
+                          Eigen::VectorXd& theta, const DesignRows* rows) const;
   void heldoutResiduals(const Spec& spec, const std::array<PartFit, 2>& folds, Evaluation& ev) const;
+  // The design row of sample i and its target: from `rows` when formed, else row() into `buffer`.
+  const double* designRow(const Samples& s, std::size_t i, const Spec& spec, const DesignRows* rows, double* buffer,
+                          double& t) const;
 
   std::vector<Samples> s_;
   int blocks_ = 0, fine_blocks_ = 0;

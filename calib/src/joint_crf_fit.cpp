@@ -20,7 +20,7 @@ namespace {
 using namespace crf_fit;
 
 // Appends pair p's sums to the stacked moments: Ĥ = r_p H (the level operator of its noise handling applied
-// first, as MomentProblem::system would), N and the counts as they are.
+// first, as MomentProblem::system would), N and the counts as they are; no squared masses (the joint fit has no CUE).
 void appendMoments(const MomentProblem& pair, double ratio, MomentProblem& joint) {
   const Moments& m = pair.moments;
   Moments& j = joint.moments;
@@ -35,7 +35,6 @@ void appendMoments(const MomentProblem& pair, double ratio, MomentProblem& joint
     };
     stack(j.h[f], ratio * h);
     stack(j.n[f], m.n[f]);
-    stack(j.q[f], ratio * ratio * m.q[f]);
     Eigen::VectorXd c(rows);
     if (j.bins > 0) c.head(j.bins) = j.count[f];
     c.tail(m.bins) = m.count[f];
@@ -102,6 +101,7 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
     CrfFitOptions o = pair.options;
     o.experimental.objective = CrfObjective::moments;
     o.level_bins = options.model.level_bins;  // one bin grid for the stacked rows (MomentProblem::system)
+    o.experimental.variance_correction = false;  // the joint fit never reads the squared masses (CUE only, see below)
     o.progress = nullptr;
     CrfFitResult pair_result;
     try {
