@@ -481,7 +481,9 @@ struct PairsRun {
                        {"scale_range", {band.scale_range.first, band.scale_range.second}},
                        {"replicate_ratios_over_true", scaled(band.replicate_ratios, 1 / c.ratio)},
                        {"replicate_images_ratios_over_true", scaled(band.replicate_images_ratios, 1 / c.ratio)},
-                       {"seconds", band.seconds}, {"summary", band.summary()}};
+                       {"seconds", band.seconds}, {"summary", band.summary()},
+                       {"ratio_log_sigma", band.ratio_log_sigma}, {"shape_half_width", band.shape_half_width},
+                       {"ratio_half_width", band.ratio_half_width}};
     }
     if (r.verdicts.count("G")) {
       s.verdict = toString(r.verdicts.at("G").level);
@@ -496,6 +498,7 @@ struct PairsRun {
                                {"nominal_over_true", e.nominal_ratio / c.ratio},
                                {"combined_over_true", e.ratio / c.ratio},
                                {"images_weight", e.images_weight},
+                               {"log_sigma", e.log_sigma},
                                {"difference_sigmas", e.conflict_sigmas},
                                {"decision", toString(e.decision)},
                                {"brightness_interval_over_true", {e.brightness_low / c.ratio, e.brightness_high / c.ratio}},
