@@ -82,6 +82,7 @@ TEST(BandRatioTerm, CoversTheShapeShiftOfARatioErrorTheHalvesShare) {
   refit.start = CrfFitOptions::Start{fit.model, fit.ratio};
   CurveBandOptions options;
   options.replicates = 6;
+  options.include_ratio_term = true;
   const CurveBand without = estimateCurveBand(pair.sharp, pair.blurred, kernel, refit, fit, covered, options);
   const CurveBand with = estimateCurveBand(pair.sharp, pair.blurred, kernel, refit, fit, covered, options,
                                            std::nullopt, std::log(1.15));

@@ -27,8 +27,13 @@ std::vector<double> ratioTermHalfWidth(const cv::Mat& sharp, const cv::Mat& blur
                                        std::pair<double, double> covered, double log_sigma, double level) {
   const int n = static_cast<int>(fit.inverse_crf.size());
   if (!(log_sigma > 0) || n < 16 || !(fit.ratio > 0)) return {};
-  const std::vector<CrfFitResult> shifted = fitInverseCrfAtHeldRatios(
-      sharp, blurred, kernel, fit_options, {fit.ratio * std::exp(-log_sigma), fit.ratio * std::exp(log_sigma)});
+  std::vector<CrfFitResult> shifted;
+  try {
+    shifted = fitInverseCrfAtHeldRatios(sharp, blurred, kernel, fit_options,
+                                        {fit.ratio * std::exp(-log_sigma), fit.ratio * std::exp(log_sigma)});
+  } catch (const InvalidInput&) {
+    return {};  // the band goes without the term rather than the calibration failing
+  }
   const std::vector<double>& phi = fit.inverse_crf;
   const int i0 = std::clamp(static_cast<int>(std::lround(covered.first * (n - 1))), 0, n - 1);
   const int i1 = std::clamp(static_cast<int>(std::lround(covered.second * (n - 1))), i0, n - 1);

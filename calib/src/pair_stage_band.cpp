@@ -32,7 +32,10 @@ void estimateBands(PairCalibrationState& state) {
   RatioTermInputs ratio_inputs;
   ratio_inputs.reported_from_evidence = result.ratio_from_evidence;
   ratio_inputs.halves_combine = ratio_rule.has_value();
-  const double ratio_log_sigma = ratioLogSigmaUnseenByHalves(result.ratio_evidence, ratio_inputs);
+  // A σ below the evidence's own threshold of a worthwhile change of r (0.5 %) is not worth two fits: at r = 1 the
+  // floor is ~1e-4 (0.072·|log r_images| with r_images within 0.7 % of 1) and φ would move by ~1e-6.
+  double ratio_log_sigma = ratioLogSigmaUnseenByHalves(result.ratio_evidence, ratio_inputs);
+  if (ratio_log_sigma < state.options.ratio_evidence.min_relative_change) ratio_log_sigma = 0;
   int done = 0;
   for (const auto& name : result.channels) {
     const auto covered = result.covered_range.find(name);

@@ -43,8 +43,8 @@ struct RatioTermInputs {
 double ratioLogSigmaUnseenByHalves(const RatioEvidence& evidence, const RatioTermInputs& inputs);
 
 // z·σ_r(x) (above), kCurveSamples samples: φ refitted with `fit_options` (the band's refit options: the chosen
-// model, started from `fit`) at r·e^{±log_sigma}, r = fit.ratio. Empty when log_sigma ≤ 0 or a refit fails
-// (too few pixels cannot happen on the data that gave `fit`; a throw is the fitter's own InvalidInput).
+// model, started from `fit`) at r·e^{±log_sigma}, r = fit.ratio. Empty when log_sigma ≤ 0 or a refit throws
+// InvalidInput (the band then goes without the term).
 std::vector<double> ratioTermHalfWidth(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                                        const CrfFitOptions& fit_options, const CrfFitResult& fit,
                                        std::pair<double, double> covered, double log_sigma, double level);
