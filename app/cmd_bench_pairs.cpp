@@ -74,6 +74,8 @@ struct PairsArgs {
   // r of the band's refits when r came from the evidence: "combined" (each half combines its r with EXIF, the
   // default) or "own" (each half keeps its images' r, as before; CurveBandOptions::replicates_combine_ratio).
   std::string band_replicate_ratio = PairCalibrationOptions{}.band.replicates_combine_ratio ? "combined" : "own";
+  // The band's ratio term (band_ratio_term.hpp; CurveBandOptions::include_ratio_term): "on" or "off".
+  std::string band_ratio_term = PairCalibrationOptions{}.band.include_ratio_term ? "on" : "off";
   bool force = false;  // write into an output directory holding other files (never deletes them)
   std::string regime = "auto";  // auto | sharp-normal | real (see the top of this file); auto = real for r > 2
   std::string noise_camera = "LGE Nexus 5";  // real regime: darktable's only phone (real pairs are phone pairs)
@@ -299,6 +301,7 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
   options.band.replicates = args.band_replicates;
   options.band.replicates_combine_ratio = args.band_replicate_ratio == "combined";
+  options.band.include_ratio_term = args.band_ratio_term == "on";
   return options;
 }
 
@@ -481,7 +484,9 @@ struct PairsRun {
                        {"scale_range", {band.scale_range.first, band.scale_range.second}},
                        {"replicate_ratios_over_true", scaled(band.replicate_ratios, 1 / c.ratio)},
                        {"replicate_images_ratios_over_true", scaled(band.replicate_images_ratios, 1 / c.ratio)},
-                       {"seconds", band.seconds}, {"summary", band.summary()}};
+                       {"seconds", band.seconds}, {"summary", band.summary()},
+                       {"ratio_log_sigma", band.ratio_log_sigma}, {"shape_half_width", band.shape_half_width},
+                       {"ratio_half_width", band.ratio_half_width}};
     }
     if (r.verdicts.count("G")) {
       s.verdict = toString(r.verdicts.at("G").level);
@@ -496,6 +501,7 @@ struct PairsRun {
                                {"nominal_over_true", e.nominal_ratio / c.ratio},
                                {"combined_over_true", e.ratio / c.ratio},
                                {"images_weight", e.images_weight},
+                               {"log_sigma", e.log_sigma},
                                {"difference_sigmas", e.conflict_sigmas},
                                {"decision", toString(e.decision)},
                                {"brightness_interval_over_true", {e.brightness_low / c.ratio, e.brightness_high / c.ratio}},
@@ -744,6 +750,11 @@ const BenchRegistration registration(
                          "r with EXIF as the pair did) or own (each half keeps its images' r)")
           ->capture_default_str()
           ->check(CLI::IsMember({"combined", "own"}));
+      command.add_option("--band-ratio-term", args->band_ratio_term,
+                         "The band's ratio term: the error of r every half-sample shares, scaled by how well the "
+                         "images' r and EXIF agree, through fits at r held a sigma away (on) or none (off)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"on", "off"}));
       command.add_flag("--pairs-only", args->pairs_only, "Only write the pairs (no calibration)");
       command.add_option("-o,--output", args->output, "Output directory")->required();
       command.add_flag("--force", args->force, kForceHelp);

@@ -254,4 +254,31 @@ CrfFitAtHeldRatio fitInverseCrfThenHoldRatio(const cv::Mat& sharp, const cv::Mat
   return fits;
 }
 
+std::vector<CrfFitResult> fitInverseCrfAtHeldRatios(const cv::Mat& sharp, const cv::Mat& blurred,
+                                                    const cv::Mat& kernel, const CrfFitOptions& options,
+                                                    const std::vector<double>& ratios) {
+  for (double r : ratios)
+    if (!(r > 0 && std::isfinite(r))) throw InvalidInput("fit options: a held ratio must be positive");
+  const auto held_options = [&](double ratio) {
+    CrfFitOptions held = options;
+    held.fit_ratio = false;
+    held.nominal_ratio = ratio;
+    if (held.start) held.start->ratio = ratio;
+    held.check();
+    return held;
+  };
+  std::vector<CrfFitResult> fits;
+  if (ratios.empty()) return fits;
+  if (options.experimental.objective == CrfObjective::seed_intensity) {  // its pixel selection depends on r
+    for (double r : ratios) fits.push_back(fitInverseCrf(sharp, blurred, kernel, held_options(r)));
+    return fits;
+  }
+  const auto t_start = Clock::now();
+  const CrfFitOptions first = held_options(ratios.front());
+  const PreparedFit prepared(sharp, blurred, kernel, first, t_start);
+  for (double r : ratios) fits.push_back(solvePreparedFit(prepared, held_options(r), Clock::now()));
+  return fits;
+}
+
 }  // namespace crfcal
+

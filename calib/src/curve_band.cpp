@@ -11,6 +11,7 @@
 #include <optional>
 #include <random>
 
+#include "crfcal/band_ratio_term.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/response_model.hpp"
 #include "parallel_jobs.hpp"
@@ -136,7 +137,8 @@ double studentQuantile(double p, double dof) {
 
 CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<std::vector<double>>& replicates,
                              std::pair<double, double> covered, const CurveBandOptions& options,
-                             const std::vector<std::vector<double>>& alternatives) {
+                             const std::vector<std::vector<double>>& alternatives,
+                             const std::vector<std::vector<double>>& systematic) {
   options.check();
   const int n = static_cast<int>(phi.size());
   if (n < 16) throw InvalidInput("band: the curve needs at least 16 samples", ErrorSubject::curve);
@@ -151,6 +153,10 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
   band.covered = covered;
   band.replicates = static_cast<int>(replicates.size());
   band.shape_half_width = shapeHalfWidthWithModel(phi, replicates, i0, i1, options, alternatives);
+  for (const auto& term : systematic) {
+    if (static_cast<int>(term.size()) != n) throw InvalidInput("band: a term of another size", ErrorSubject::curve);
+    for (int i = 0; i < n; ++i) band.shape_half_width[i] = std::hypot(band.shape_half_width[i], term[i]);
+  }
   const std::vector<double>& h = band.shape_half_width;
 
   // The exponents beyond the data, from the fit's own exponent at the edge of the data (over ~5 % of x).
@@ -357,7 +363,7 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
 CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                             const CrfFitOptions& fit_options, const CrfFitResult& fit,
                             std::pair<double, double> covered, const CurveBandOptions& options,
-                            const std::optional<ReplicateRatioRule>& ratio_rule) {
+                            const std::optional<ReplicateRatioRule>& ratio_rule, double ratio_log_sigma) {
   options.check();
   const auto start = std::chrono::steady_clock::now();
   CrfFitOptions refit_options = fit_options;
@@ -376,13 +382,29 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
   for (const auto& candidate : fit.candidates)
     if (candidate.valid && candidate.kind != fit.chosen && !candidate.inverse_crf.empty())
       alternatives.push_back(candidate.inverse_crf);
-  CurveBand band = bandFromReplicates(fit.inverse_crf, curves, covered, options, alternatives);
+  // The r error every half shares, as φ's response to r held σ away (band_ratio_term.hpp): the refits' options
+  // (chosen model, from the fit), so that it measures the estimator the band resamples.
+  std::vector<double> ratio_term;
+  if (options.include_ratio_term && ratio_log_sigma > 0)
+    ratio_term = ratioTermHalfWidth(sharp, blurred, kernel, refit_options, fit, covered, ratio_log_sigma,
+                                    options.level);
+  std::vector<std::vector<double>> systematic;
+  if (!ratio_term.empty()) systematic.push_back(ratio_term);
+  CurveBand band = bandFromReplicates(fit.inverse_crf, curves, covered, options, alternatives, systematic);
   band.failed_replicates = failed;
+  if (!ratio_term.empty()) {
+    band.ratio_half_width = std::move(ratio_term);
+    band.ratio_log_sigma = ratio_log_sigma;
+  }
+  const int n = static_cast<int>(fit.inverse_crf.size());
+  const int i0 = sampleIndex(covered.first, n), i1 = std::max(sampleIndex(covered.second, n), i0 + 1);
   if (ratio_rule && refits.images_curves.size() >= 2) {
-    const int n = static_cast<int>(fit.inverse_crf.size());
-    const int i0 = sampleIndex(covered.first, n), i1 = std::max(sampleIndex(covered.second, n), i0 + 1);
     band.images_ratio_half_width =
         shapeHalfWidthWithModel(fit.inverse_crf, refits.images_curves, i0, i1, options, alternatives);
+  } else if (!band.ratio_half_width.empty()) {
+    // Without a rule the refits fitted their own r: their half-width before the ratio term is the images' own
+    // (the verdict's reading, unchanged by the term).
+    band.images_ratio_half_width = shapeHalfWidthWithModel(fit.inverse_crf, curves, i0, i1, options, alternatives);
   }
   band.replicate_ratios = refits.ratios;
   band.replicate_images_ratios = refits.images_ratios;

@@ -5,6 +5,7 @@
 #include <optional>
 #include <string>
 
+#include "crfcal/band_ratio_term.hpp"
 #include "crfcal/kernel.hpp"
 #include "pair_stages.hpp"
 
@@ -25,6 +26,16 @@ void estimateBands(PairCalibrationState& state) {
     if (state.options.band.replicates_combine_ratio)
       ratio_rule = ReplicateRatioRule{evidence.images_weight, evidence.images_ratio, evidence.ratio};
   }
+  // The error of r every half shares (the images' exponent floor, EXIF's own), scaled by how well the two agree
+  // (band_ratio_term.hpp); 0 at r = 1 with the images' r (no floor there), and without evidence (no nominal ratio,
+  // r held for a small blur or by --fix-ratio).
+  RatioTermInputs ratio_inputs;
+  ratio_inputs.reported_from_evidence = result.ratio_from_evidence;
+  ratio_inputs.halves_combine = ratio_rule.has_value();
+  // A σ below the evidence's own threshold of a worthwhile change of r (0.5 %) is not worth two fits: at r = 1 the
+  // floor is ~1e-4 (0.072·|log r_images| with r_images within 0.7 % of 1) and φ would move by ~1e-6.
+  double ratio_log_sigma = ratioLogSigmaUnseenByHalves(result.ratio_evidence, ratio_inputs);
+  if (ratio_log_sigma < state.options.ratio_evidence.min_relative_change) ratio_log_sigma = 0;
   int done = 0;
   for (const auto& name : result.channels) {
     const auto covered = result.covered_range.find(name);
@@ -32,7 +43,7 @@ void estimateBands(PairCalibrationState& state) {
     state.report("band", double(done++) / result.channels.size(), name);
     result.bands[name] = estimateCurveBand(state.window_sharp.at(name), state.window_blurred.at(name), kernel,
                                            fit_options, result.fits.at(name), covered->second,
-                                           state.options.band, ratio_rule);
+                                           state.options.band, ratio_rule, ratio_log_sigma);
   }
   result.timings["band"] = secondsSince(start);
   state.report("band", 1);

@@ -280,4 +280,13 @@ CrfFitAtHeldRatio fitInverseCrfThenHoldRatio(const cv::Mat& sharp, const cv::Mat
                                              const CrfFitOptions& options,
                                              const std::function<double(double fitted_ratio)>& held_ratio);
 
+// φ fitted at each of `ratios` held (fit_ratio off, nominal_ratio = that r; a start given in options starts every fit,
+// its r replaced by the held one) on one preparation of the pixels and moments (which do not depend on r with the
+// moment objectives): the results of one fitInverseCrf call per ratio. The band's ratio term (curve_band.hpp) is its
+// use: how the fit's φ moves when r is held a σ of log r away. Throws as fitInverseCrf, and InvalidInput for a
+// ratio ≤ 0.
+std::vector<CrfFitResult> fitInverseCrfAtHeldRatios(const cv::Mat& sharp, const cv::Mat& blurred,
+                                                    const cv::Mat& kernel, const CrfFitOptions& options,
+                                                    const std::vector<double>& ratios);
+
 }  // namespace crfcal

@@ -64,6 +64,12 @@ struct CurveBandOptions {
   // the refits keep their halves' own r (before the fix: the band then carried the images' whole spread of r,
   // 99 % shape coverage at r = 4 and 8 for a 90 % band; docs/RESULTS.md#curve-band-issue-19).
   bool replicates_combine_ratio = true;
+  // Add the error of r that every half shares (the exponent floor of the images' r, the nominal ratio's own error),
+  // scaled by how well the pair's two estimates of r agree, as φ's response to r held a σ away (band_ratio_term.hpp;
+  // two more fits per channel when that σ is ≥ 0.5 %, none at r = 1). Off by default: measured on `bench pairs`
+  // (docs/RESULTS.md#band-ratio-term) it lifts the shape coverage at r = 8 from 83.1 % to 98.9 % but also at r = 4
+  // from 91.0 % (met) to 99.6 %: the a-priori σ (EXIF's 0.13) are 2–3× the bench's r errors where the estimates agree.
+  bool include_ratio_term = false;
   std::uint64_t seed = 1;  // the blocks' half-samples (deterministic)
   void check() const;      // throws InvalidInput
 };
@@ -76,8 +82,12 @@ struct CurveBand {
   // With a ReplicateRatioRule: the same half-width from the halves' refits with their OWN r (the images alone, no
   // EXIF), model term included; empty otherwise. How well the pair's images fix φ's shape: the verdict's reading
   // (medianShapeSigma), since a shape that only EXIF's r pins is not fixed by the pair. Not a band of the reported
-  // curve (those refits are not centred on it: they sit at the images' r).
+  // curve (those refits are not centred on it: they sit at the images' r). Also without a rule when the ratio
+  // term was added: the half-width before it (the refits fitted their own r), so the verdict's reading is unchanged.
   std::vector<double> images_ratio_half_width;
+  // The ratio term (band_ratio_term.hpp) inside shape_half_width: z·σ_r(x), kCurveSamples samples; empty without it.
+  std::vector<double> ratio_half_width;
+  double ratio_log_sigma = 0;  // σ of log r it was computed for (0: none)
   std::pair<double, double> covered{0, 1};  // the covered range the band was built for
   std::pair<double, double> scale_range{1, 1};  // factors s with φ_true ≈ s·φ on the covered range
   std::pair<double, double> exponent_above{1, 1};  // [g_lo, g_hi] used above the covered range
@@ -94,10 +104,12 @@ struct CurveBand {
 // The band from a fit `phi` (kCurveSamples samples), the replicates' curves (half-sample refits, any number ≥ 2;
 // fewer: no sampling part) and the covered range. Throws InvalidInput for a malformed curve or range.
 // `alternatives`: other plausible fits of the same data (the fitter's other candidate model), each added as a
-// model term when options.include_model_spread.
+// model term when options.include_model_spread. `systematic`: half-widths of errors the replicates share (each
+// kCurveSamples samples, e.g. the ratio term), added in quadrature as they are.
 CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<std::vector<double>>& replicates,
                              std::pair<double, double> covered, const CurveBandOptions& options = {},
-                             const std::vector<std::vector<double>>& alternatives = {});
+                             const std::vector<std::vector<double>>& alternatives = {},
+                             const std::vector<std::vector<double>>& systematic = {});
 
 // The shape band's median half-width over its covered range, and as a standard deviation (divided by the band's t
 // quantile at its level and number of refits; the normal quantile without refits). medianShapeSigma is what a
@@ -149,10 +161,13 @@ std::vector<cv::Mat> halfSampleMasks(const cv::Mat& used, int block, int count, 
 // with the same images, kernel and fit options (CrfFitOptions::pixel_selection), then bandFromReplicates.
 // `ratio_rule`: the reported r is a combination of the images' r with the nominal one (see ReplicateRatioRule);
 // fit_options.fit_ratio must then be true (the halves fit r from their images first).
+// `ratio_log_sigma`: σ of log r that the refits cannot see (band_ratio_term.hpp's ratioLogSigmaUnseenByHalves); with
+// options.include_ratio_term and σ > 0 the ratio term is added (two fits at r held σ away).
 CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                             const CrfFitOptions& fit_options, const CrfFitResult& fit,
                             std::pair<double, double> covered, const CurveBandOptions& options = {},
-                            const std::optional<ReplicateRatioRule>& ratio_rule = std::nullopt);
+                            const std::optional<ReplicateRatioRule>& ratio_rule = std::nullopt,
+                            double ratio_log_sigma = 0);
 
 // How a band fares against a known truth (the benches): x samples of the truth inside the band, counted inside,
 // above and below the band's covered range; inside, also the SHAPE band: |a·truth − φ| ≤ shape_half_width with a
