@@ -75,7 +75,7 @@ struct Curve {
   double measured_top = 1;
   // The learned prior (calib/learned_curve_prior.hpp) from every other curve of the set: what a variant with
   // `learned_prior_loco` fits this curve's pairs with, so no curve's pairs see a prior that saw the curve.
-  std::shared_ptr<const LearnedCurvePrior> prior_without_this;
+  std::shared_ptr<const LearnedCurvePrior> prior_without_this{};
 };
 
 struct Variant {
