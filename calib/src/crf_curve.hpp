@@ -39,6 +39,9 @@ class Curve {
     return sample(x, kGrid, kind_ == kEmor ? &basis_grid_ : nullptr, f, jac);
   }
   ResponseModel model(const std::vector<double>& x) const;
+  // EMoR only: the mean curve and the dims() basis functions on the levels, (dims() + 1) × levels, row-major (φ is
+  // linear in the coefficients: f = row 0 + Σ_k x_k · row k).
+  const std::vector<double>& emorBasisOnLevels() const { return basis_levels_; }
 
  private:
   // GGCM's nodes x = v/(n−1) with what does not depend on α: log x and the powers x^j (the Jacobian's factors).

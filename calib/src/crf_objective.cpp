@@ -363,7 +363,17 @@ std::atomic<std::uint64_t> next_residuals_id{1};
 
 MomentResiduals::MomentResiduals(const Curve& curve, const MomentSystem& sys, double r0, bool fit_ratio,
                                  bool with_prior)
-    : curve_(curve), sys_(sys), r0_(r0), fit_ratio_(fit_ratio), with_prior_(with_prior), id_(next_residuals_id++) {}
+    : curve_(curve), sys_(sys), r0_(r0), fit_ratio_(fit_ratio), with_prior_(with_prior), id_(next_residuals_id++) {
+  if (curve.kind() != Curve::kEmor) return;
+  const int L = sys.levels(), d = curve.dims();
+  const std::vector<double>& basis = curve.emorBasisOnLevels();
+  Eigen::Map<const Eigen::VectorXd> mean(basis.data(), L);
+  Eigen::Map<const RowMajor> functions(basis.data() + L, d, L);
+  h_mean_ = sys.h * mean;
+  n_mean_ = sys.n * mean;
+  h_basis_ = sys.h * functions.transpose();
+  n_basis_ = sys.n * functions.transpose();
+}
 
 // Levenberg–Marquardt asks for the Jacobian at the trial point it has just accepted, whose residuals it evaluated
 // a moment before: that evaluation's values (φ, H φ, N φ, the slopes, the prior rows) are kept per thread and
@@ -398,9 +408,16 @@ bool MomentResiduals::evaluate(const Eigen::VectorXd& p, Evaluation& e) const {
   if (!priors.defined(f)) return false;
   const double r = fit_ratio_ ? std::exp(p[d]) : r0_;
   e.r = r;
-  Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
-  e.hf = sys.h * fv;
-  const Eigen::VectorXd nf = sys.n * fv;
+  Eigen::VectorXd nf;
+  if (emor) {
+    Eigen::Map<const Eigen::VectorXd> c(p.data(), d);
+    e.hf = h_mean_ + h_basis_ * c;
+    nf = n_mean_ + n_basis_ * c;
+  } else {
+    Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
+    e.hf = sys.h * fv;
+    nf = sys.n * fv;
+  }
   e.slope.resize(rows);
   e.raw = r * e.hf - nf;
   for (int i = 0; i < rows; ++i) {
@@ -444,7 +461,8 @@ void MomentResiduals::jacobian(const Eigen::VectorXd& p, const Evaluation& e, Ei
   const int np = static_cast<int>(p.size());
   jac.setZero(rows + extra, np);
   Eigen::Map<const RowMajor> jm(jf.data(), d, L);
-  const Eigen::MatrixXd draw = (r * sys.h - sys.n) * jm.transpose();  // rows × d
+  const Eigen::MatrixXd draw = emor ? Eigen::MatrixXd(r * h_basis_ - n_basis_)
+                                    : Eigen::MatrixXd((r * sys.h - sys.n) * jm.transpose());  // rows × d
   for (int i = 0; i < rows; ++i) {
     const double scale = (L - 1) / double(sys.v1[i] - sys.v0[i]);
     for (int j = 0; j < d; ++j) {

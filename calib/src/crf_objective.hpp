@@ -140,6 +140,10 @@ class MomentResiduals {
   double r0_;
   bool fit_ratio_, with_prior_;
   std::uint64_t id_;
+  // EMoR: φ = e₀ + E c is linear in c, so H φ = H e₀ + (H E) c and ∂(r H φ − N φ)/∂c = r (H E) − N E. The rows ×
+  // levels products are formed once per fit here instead of once per evaluation and Jacobian (rows × dims).
+  Eigen::VectorXd h_mean_, n_mean_;  // H e₀, N e₀
+  Eigen::MatrixXd h_basis_, n_basis_;  // H E, N E (rows × dims)
 };
 
 // Continuously-updated GMM (CUE): residual_k = S_k / √V_k(φ, r), S_k = (r Ĥ_k − N_k)·φ the bin sum and
