@@ -65,12 +65,9 @@ double shapeCoverage(const std::vector<double>& phi, const std::vector<double>& 
 // halves hold the same r). The sampling band misses the exponent shift that r's error puts into φ; with the ratio
 // term for a σ of log r of that size the truth is covered.
 TEST(BandRatioTerm, CoversTheShapeShiftOfARatioErrorTheHalvesShare) {
-  const GammaModel truth_model{2.2};
-  SimulationOptions sim;
-  sim.ratio = 4;
-  sim.noise_variance = 0.0002;
+  const GammaModel truth_model{2.2};  // the pair's curve
   const cv::Mat kernel = test::levinKernel(3);
-  const SimulationResult pair = simulatePair(test::levinImage(2) * 0.2, truth_model, kernel, sim);
+  const SimulationResult pair = test::gammaPairAtRatio4();
   CrfFitOptions held;
   held.fit_ratio = false;
   held.nominal_ratio = 4 * 1.15;

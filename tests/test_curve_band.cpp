@@ -193,12 +193,8 @@ std::pair<double, double> replicateDeviation(const std::vector<double>& phi, con
 // the reported curve by the same exponent shift: a bias that inflated the band (99 % coverage at r = 4, 8 on
 // `bench pairs`). With the rule each half combines its own r the same way and the refits are centred again.
 TEST(CurveBand, HalfSampleRefitsRunTheReportedRatioEstimatorAndAreCentredOnIt) {
-  const GammaModel truth_model{2.2};
-  SimulationOptions sim;
-  sim.ratio = 4;
-  sim.noise_variance = 0.0002;
   const cv::Mat kernel = test::levinKernel(3);
-  const SimulationResult pair = simulatePair(test::levinImage(2) * 0.2, truth_model, kernel, sim);
+  const SimulationResult pair = test::gammaPairAtRatio4();
   CrfFitOptions free_ratio;
   free_ratio.nominal_ratio = 4;
   const CrfFitResult images = fitInverseCrf(pair.sharp, pair.blurred, kernel, free_ratio);

@@ -26,6 +26,13 @@ cv::Mat levinImage(int index) { return io::readGrayUnit(samples() / "levin09" / 
 
 cv::Mat levinKernel(int index) { return io::kernelFromSpec("levin:" + std::to_string(index)); }
 
+SimulationResult gammaPairAtRatio4() {
+  SimulationOptions sim;
+  sim.ratio = 4;
+  sim.noise_variance = 0.0002;
+  return simulatePair(levinImage(2) * 0.2, GammaModel{2.2}, levinKernel(3), sim);
+}
+
 TempDir::TempDir() {
   std::random_device device;
   path_ = fs::temp_directory_path() / ("crfcal-test-" + std::to_string(device()));

@@ -5,6 +5,8 @@
 
 #include <opencv2/core.hpp>
 
+#include "crfcal/simulation.hpp"
+
 namespace crfcal::test {
 
 std::filesystem::path samples();            // the project's samples/ directory
@@ -12,6 +14,9 @@ std::filesystem::path crfcalBinary();       // the built crfcal command
 std::filesystem::path sharedData();         // ../shared/data (or $CRFCAL_SHARED_DATA); empty if absent
 cv::Mat levinImage(int index);              // samples/levin09/im<index>.png as CV_64F in [0,1]
 cv::Mat levinKernel(int index);             // samples/levin09/kernel0<index>.txt, normalised
+// A synthetic pair at r = 4 for the band's tests: gamma 2.2, Levin image 2 at a fifth of its brightness, Levin
+// kernel 3, noise variance 2·10⁻⁴ (the kernel is levinKernel(3)).
+SimulationResult gammaPairAtRatio4();
 
 // A fresh temporary directory removed when the object dies.
 class TempDir {

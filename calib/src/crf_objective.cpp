@@ -391,14 +391,15 @@ bool MomentResiduals::operator()(const Eigen::VectorXd& p, Eigen::VectorXd& res,
   return true;
 }
 
+MomentResiduals::Layout MomentResiduals::layout() const {
+  const bool emor = curve_.kind() == Curve::kEmor;
+  return {sys_.levels(), curve_.dims(), static_cast<int>(sys_.h.rows()), emor,
+          1.0 / std::sqrt(std::max(sys_.weight, 1e-300)), emor ? kGrid - 1 : 0};
+}
+
 bool MomentResiduals::evaluate(const Eigen::VectorXd& p, Evaluation& e) const {
   const MomentSystem& sys = sys_;
-  const int L = sys.levels();
-  const int d = curve_.dims();
-  const int rows = static_cast<int>(sys.h.rows());
-  const bool emor = curve_.kind() == Curve::kEmor;
-  const double norm = 1.0 / std::sqrt(std::max(sys.weight, 1e-300));
-  const int monotone_rows = emor ? kGrid - 1 : 0;
+  const auto [L, d, rows, emor, norm, monotone_rows] = layout();
   const PriorRows priors(sys, fit_ratio_, with_prior_);
   const CensoredResiduals censored(sys.censored, norm);
   const int extra = monotone_rows + priors.count() + censored.count();
@@ -444,12 +445,7 @@ bool MomentResiduals::evaluate(const Eigen::VectorXd& p, Evaluation& e) const {
 
 void MomentResiduals::jacobian(const Eigen::VectorXd& p, const Evaluation& e, Eigen::MatrixXd& jac) const {
   const MomentSystem& sys = sys_;
-  const int L = sys.levels();
-  const int d = curve_.dims();
-  const int rows = static_cast<int>(sys.h.rows());
-  const bool emor = curve_.kind() == Curve::kEmor;
-  const double norm = 1.0 / std::sqrt(std::max(sys.weight, 1e-300));
-  const int monotone_rows = emor ? kGrid - 1 : 0;
+  const auto [L, d, rows, emor, norm, monotone_rows] = layout();
   const PriorRows priors(sys, fit_ratio_, with_prior_);
   const CensoredResiduals censored(sys.censored, norm);
   const int extra = monotone_rows + priors.count() + censored.count();

@@ -132,6 +132,15 @@ class MomentResiduals {
     Eigen::VectorXd hf, slope, raw, res;
     std::vector<double> prior_scale;
   };
+  // The residual vector's shape (the same for the residuals and their Jacobian); the prior and censored rows
+  // follow the monotonicity rows (crf_priors.hpp, crf_censored.hpp).
+  struct Layout {
+    int levels, dims, rows;  // levels of φ, curve parameters, data rows
+    bool emor;
+    double norm;             // 1/√(Σ ω): the data rows' normalisation
+    int monotone_rows;       // EMoR's monotonicity penalty rows after the data
+  };
+  Layout layout() const;
   bool evaluate(const Eigen::VectorXd& p, Evaluation& e) const;
   void jacobian(const Eigen::VectorXd& p, const Evaluation& e, Eigen::MatrixXd& jac) const;
 
