@@ -165,11 +165,10 @@ std::string ScaledFitResult::summary() const {
   return out.str();
 }
 
-ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observations, int terms,
-                                      const ScaledFitOptions& options) {
-  options.check();
-  validate(observations);
-  if (terms < 0 || terms > emor::kMaxTerms) throw InvalidInput("fit terms must be in 0..25");
+namespace {
+
+// The data rows of the problem: the EMoR basis and mean at each observation's x, its value, weight, group and kind.
+Problem dataProblem(std::span<const ScaledObservation> observations, int terms, const ScaledFitOptions& options) {
   Problem p;
   p.terms = terms;
   const auto n = static_cast<Eigen::Index>(observations.size());
@@ -182,6 +181,7 @@ ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observa
   p.kind.resize(static_cast<size_t>(n));
   p.normaliser = 0;
   p.smoothness = options.smoothness;
+  p.profile_scales = options.profile_scales;
   for (Eigen::Index i = 0; i < n; ++i) {
     const ScaledObservation& o = observations[static_cast<size_t>(i)];
     for (int k = 0; k < terms; ++k) p.basis(i, k) = lerp(emor::inverseBasis(k + 1), o.x);
@@ -192,96 +192,107 @@ ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observa
     p.kind[static_cast<size_t>(i)] = o.kind;
     if (o.kind == ScaledObservation::Kind::Exact) p.normaliser += o.weight * o.y * o.y;
   }
-  if (terms > 0 && options.smoothness > 0) {
-    constexpr int kRoughGrid = 64;
-    p.rough_a.resize(kRoughGrid - 2, terms);
-    p.rough_b.resize(kRoughGrid - 2);
-    for (int j = 1; j + 1 < kRoughGrid; ++j) {
-      const double x0 = double(j - 1) / (kRoughGrid - 1), x1 = double(j) / (kRoughGrid - 1),
-                   x2 = double(j + 1) / (kRoughGrid - 1);
-      auto d2 = [&](std::span<const double, emor::kSamples> curve) {
-        return lerp(curve, x2) - 2 * lerp(curve, x1) + lerp(curve, x0);
-      };
-      for (int k = 0; k < terms; ++k) p.rough_a(j - 1, k) = d2(emor::inverseBasis(k + 1));
-      p.rough_b[j - 1] = d2(emor::inverseMean());
-    }
-  }
-  if (terms > 0 && options.exponent_smoothness > 0) {
-    // Nodes x_j = j/64 from the last one inside the data to 1: the penalty only decides the continuation of φ
-    // beyond the brightest exact sample (where the data cannot), and links it to the exponent the data show.
-    constexpr int kExponentGrid = 64, kFirst = 4;
-    double top = 0;
-    for (const auto& o : observations)
-      if (o.kind == ScaledObservation::Kind::Exact) top = std::max(top, o.x);
-    int first = std::max(kFirst, int(std::floor(top * kExponentGrid)) - 1);
-    first = std::min(first, kExponentGrid - 2);
-    p.exponent_smoothness = options.exponent_smoothness;
-    const int m = kExponentGrid - first + 1;
-    p.exponent_a.resize(m, terms);
-    p.exponent_b.resize(m);
-    p.exponent_dlog.resize(m - 1);
-    for (int j = 0; j < m; ++j) {
-      const double x = double(j + first) / kExponentGrid;
-      for (int k = 0; k < terms; ++k) p.exponent_a(j, k) = lerp(emor::inverseBasis(k + 1), x);
-      p.exponent_b[j] = lerp(emor::inverseMean(), x);
-      if (j + 1 < m) p.exponent_dlog[j] = std::log(double(j + first + 1) / (j + first));
-    }
-  }
-  if (!(p.normaliser > 0)) throw InvalidInput("response fit: all weights are zero");
+  return p;
+}
 
-  p.profile_scales = options.profile_scales;
-  std::vector<double> v(static_cast<size_t>(terms + (p.profile_scales ? 0 : p.groups)), 0.0);
-  if (!p.profile_scales) {
-    const std::vector<double> s = bestScales(p, p.mean);
-    std::copy(s.begin(), s.end(), v.begin() + terms);
+// The roughness penalty's rows: second differences of the basis and mean on a 64-node grid.
+void addRoughnessRows(Problem& p) {
+  constexpr int kRoughGrid = 64;
+  p.rough_a.resize(kRoughGrid - 2, p.terms);
+  p.rough_b.resize(kRoughGrid - 2);
+  for (int j = 1; j + 1 < kRoughGrid; ++j) {
+    const double x0 = double(j - 1) / (kRoughGrid - 1), x1 = double(j) / (kRoughGrid - 1),
+                 x2 = double(j + 1) / (kRoughGrid - 1);
+    auto d2 = [&](std::span<const double, emor::kSamples> curve) {
+      return lerp(curve, x2) - 2 * lerp(curve, x1) + lerp(curve, x0);
+    };
+    for (int k = 0; k < p.terms; ++k) p.rough_a(j - 1, k) = d2(emor::inverseBasis(k + 1));
+    p.rough_b[j - 1] = d2(emor::inverseMean());
   }
-  if (terms > 0) {
-    const int grid = options.monotone_grid;
-    p.monotone_a.resize(grid - 1, terms);
-    p.monotone_b.resize(grid - 1);
-    for (int j = 0; j + 1 < grid; ++j) {
-      const double x0 = double(j) / (grid - 1), x1 = double(j + 1) / (grid - 1);
-      for (int k = 0; k < terms; ++k)
-        p.monotone_a(j, k) = lerp(emor::inverseBasis(k + 1), x1) - lerp(emor::inverseBasis(k + 1), x0);
-      p.monotone_b[j] = lerp(emor::inverseMean(), x1) - lerp(emor::inverseMean(), x0);
-    }
-    nlopt::opt optimizer(nlopt::LD_SLSQP, static_cast<unsigned>(v.size()));
-    optimizer.set_min_objective(
-        [](const std::vector<double>& x, std::vector<double>& g, void* data) {
-          return cost(*static_cast<const Problem*>(data), x.data(), g.empty() ? nullptr : g.data());
-        },
-        &p);
-    // φ(x_{j+1}) − φ(x_j) ≥ 0  ⇔  −(A c + b) ≤ 0 (one vector-valued constraint).
-    optimizer.add_inequality_mconstraint(
-        [](unsigned m, double* result, unsigned nv, const double* x, double* grad, void* data) {
-          const auto& pr = *static_cast<const Problem*>(data);
-          const Eigen::Map<const Eigen::VectorXd> c(x, pr.terms);
-          Eigen::Map<Eigen::VectorXd>(result, m) = -(pr.monotone_a * c + pr.monotone_b);
-          if (grad) {
-            Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> g(grad, m, nv);
-            g.setZero();
-            g.leftCols(pr.terms) = -pr.monotone_a;
-          }
-        },
-        &p, std::vector<double>(static_cast<size_t>(grid - 1), 1e-12));
-    std::vector<double> lower(v.size(), -std::numeric_limits<double>::infinity());
-    if (!p.profile_scales)
-      for (int g = 0; g < p.groups; ++g) lower[static_cast<size_t>(terms + g)] = 0;
-    optimizer.set_lower_bounds(lower);
-    optimizer.set_ftol_rel(1e-14);
-    optimizer.set_xtol_rel(1e-10);
-    optimizer.set_maxeval(options.max_evaluations);
-    double value = 0;
-    try {
-      optimizer.optimize(v, value);
-    } catch (const nlopt::roundoff_limited&) {
-    } catch (const std::runtime_error&) {
-    }
-  }
+}
 
+// The exponent-smoothness rows. Nodes x_j = j/64 from the last one inside the data to 1: the penalty only decides
+// the continuation of φ beyond the brightest exact sample (where the data cannot), and links it to the exponent the
+// data show.
+void addExponentRows(Problem& p, std::span<const ScaledObservation> observations, double exponent_smoothness) {
+  constexpr int kExponentGrid = 64, kFirst = 4;
+  double top = 0;
+  for (const auto& o : observations)
+    if (o.kind == ScaledObservation::Kind::Exact) top = std::max(top, o.x);
+  int first = std::max(kFirst, int(std::floor(top * kExponentGrid)) - 1);
+  first = std::min(first, kExponentGrid - 2);
+  p.exponent_smoothness = exponent_smoothness;
+  const int m = kExponentGrid - first + 1;
+  p.exponent_a.resize(m, p.terms);
+  p.exponent_b.resize(m);
+  p.exponent_dlog.resize(m - 1);
+  for (int j = 0; j < m; ++j) {
+    const double x = double(j + first) / kExponentGrid;
+    for (int k = 0; k < p.terms; ++k) p.exponent_a(j, k) = lerp(emor::inverseBasis(k + 1), x);
+    p.exponent_b[j] = lerp(emor::inverseMean(), x);
+    if (j + 1 < m) p.exponent_dlog[j] = std::log(double(j + first + 1) / (j + first));
+  }
+}
+
+// The monotonicity constraint's rows on `grid` nodes: φ(x_{j+1}) − φ(x_j) = monotone_a.row(j)·c + monotone_b[j].
+void addMonotoneRows(Problem& p, int grid) {
+  p.monotone_a.resize(grid - 1, p.terms);
+  p.monotone_b.resize(grid - 1);
+  for (int j = 0; j + 1 < grid; ++j) {
+    const double x0 = double(j) / (grid - 1), x1 = double(j + 1) / (grid - 1);
+    for (int k = 0; k < p.terms; ++k)
+      p.monotone_a(j, k) = lerp(emor::inverseBasis(k + 1), x1) - lerp(emor::inverseBasis(k + 1), x0);
+    p.monotone_b[j] = lerp(emor::inverseMean(), x1) - lerp(emor::inverseMean(), x0);
+  }
+}
+
+// SLSQP (NLopt) on the EMoR coefficients (and the groups' scales unless profiled), φ non-decreasing on the monotone
+// grid, the scales non-negative; `v` holds the start and receives the solution. `p` is only read (NLopt's callbacks
+// take a non-const pointer).
+void minimiseWithSlsqp(Problem& p, const ScaledFitOptions& options, std::vector<double>& v) {
+  const int grid = options.monotone_grid;
+  nlopt::opt optimizer(nlopt::LD_SLSQP, static_cast<unsigned>(v.size()));
+  optimizer.set_min_objective(
+      [](const std::vector<double>& x, std::vector<double>& g, void* data) {
+        return cost(*static_cast<const Problem*>(data), x.data(), g.empty() ? nullptr : g.data());
+      },
+      &p);
+  // φ(x_{j+1}) − φ(x_j) ≥ 0  ⇔  −(A c + b) ≤ 0 (one vector-valued constraint).
+  optimizer.add_inequality_mconstraint(
+      [](unsigned m, double* result, unsigned nv, const double* x, double* grad, void* data) {
+        const auto& pr = *static_cast<const Problem*>(data);
+        const Eigen::Map<const Eigen::VectorXd> c(x, pr.terms);
+        Eigen::Map<Eigen::VectorXd>(result, m) = -(pr.monotone_a * c + pr.monotone_b);
+        if (grad) {
+          Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> g(grad, m, nv);
+          g.setZero();
+          g.leftCols(pr.terms) = -pr.monotone_a;
+        }
+      },
+      &p, std::vector<double>(static_cast<size_t>(grid - 1), 1e-12));
+  std::vector<double> lower(v.size(), -std::numeric_limits<double>::infinity());
+  if (!p.profile_scales)
+    for (int g = 0; g < p.groups; ++g) lower[static_cast<size_t>(p.terms + g)] = 0;
+  optimizer.set_lower_bounds(lower);
+  optimizer.set_ftol_rel(1e-14);
+  optimizer.set_xtol_rel(1e-10);
+  optimizer.set_maxeval(options.max_evaluations);
+  double value = 0;
+  try {
+    optimizer.optimize(v, value);
+  } catch (const nlopt::roundoff_limited&) {
+  } catch (const std::runtime_error&) {
+  }
+}
+
+// The result for the fitted coefficients: φ's table, the groups' scales polished for it, residuals (censored ones
+// one-sided), the weighted RMSE over the exact observations and the range of x they cover.
+ScaledFitResult scaledFitResult(const Problem& p, std::span<const ScaledObservation> observations,
+                                const std::vector<double>& v) {
+  const auto n = static_cast<Eigen::Index>(observations.size());
   ScaledFitResult result;
-  result.terms = terms;
-  result.model.coefficients.assign(v.begin(), v.begin() + terms);
+  result.terms = p.terms;
+  result.model.coefficients.assign(v.begin(), v.begin() + p.terms);
   result.inverse = emorSamples(result.model.coefficients);
   // Tiny negative steps the SLSQP tolerance (or a monotone grid coarser than the 1024 nodes) lets through: make the
   // table exactly non-decreasing and ≤ φ(1) = 1.
@@ -315,6 +326,29 @@ ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observa
   result.rmse = weight > 0 ? std::sqrt(sum / weight) : 0;
   result.observations = int(n) - result.censored;
   return result;
+}
+
+}  // namespace
+
+ScaledFitResult fitScaledInverseFixed(std::span<const ScaledObservation> observations, int terms,
+                                      const ScaledFitOptions& options) {
+  options.check();
+  validate(observations);
+  if (terms < 0 || terms > emor::kMaxTerms) throw InvalidInput("fit terms must be in 0..25");
+  Problem p = dataProblem(observations, terms, options);
+  if (terms > 0 && options.smoothness > 0) addRoughnessRows(p);
+  if (terms > 0 && options.exponent_smoothness > 0) addExponentRows(p, observations, options.exponent_smoothness);
+  if (!(p.normaliser > 0)) throw InvalidInput("response fit: all weights are zero");
+  std::vector<double> v(static_cast<size_t>(terms + (p.profile_scales ? 0 : p.groups)), 0.0);
+  if (!p.profile_scales) {
+    const std::vector<double> s = bestScales(p, p.mean);
+    std::copy(s.begin(), s.end(), v.begin() + terms);
+  }
+  if (terms > 0) {
+    addMonotoneRows(p, options.monotone_grid);
+    minimiseWithSlsqp(p, options, v);
+  }
+  return scaledFitResult(p, observations, v);
 }
 
 ScaledFitResult fitScaledInverse(std::span<const ScaledObservation> observations, const ScaledFitOptions& options) {

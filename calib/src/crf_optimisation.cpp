@@ -123,11 +123,11 @@ std::vector<std::vector<double>> emorLinearStarts(const Curve& curve, const Mome
   return {std::vector<double>(c.data(), c.data() + d), zero};
 }
 
-// The closed-form r of the moments at φ: argmin_r ‖r H φ − N φ‖ (clamped to [0.05, 20]).
+// The closed-form r of the moments at φ: argmin_r ‖r H φ − N φ‖ (clamped to the fitter's range, crf_fitter.hpp).
 double profiledRatio(const MomentSystem& sys, const std::vector<double>& f) {
   Eigen::Map<const Eigen::VectorXd> fv(f.data(), sys.levels());
   const Eigen::VectorXd hf = sys.h * fv, nf = sys.n * fv;
-  return std::clamp(hf.dot(nf) / std::max(hf.squaredNorm(), 1e-300), 0.05, 20.0);
+  return std::clamp(hf.dot(nf) / std::max(hf.squaredNorm(), 1e-300), kMinExposureRatio, kMaxExposureRatio);
 }
 
 // Levenberg–Marquardt from each non-empty start (the model's parameters, then log r when it is fitted); the lowest
@@ -255,7 +255,7 @@ SeedFit alternateRatio(SeedObjective& objective, std::vector<double> x, const Cr
     ++fit.rounds;
     progress(double(round + 1) / rounds);
     if (!options.fit_ratio) break;
-    const double next = std::clamp(objective.ratioStep(x), 0.05, 20.0);
+    const double next = std::clamp(objective.ratioStep(x), kMinExposureRatio, kMaxExposureRatio);
     const bool converged = std::abs(next - objective.ratio) < 1e-4 * objective.ratio;
     objective.ratio = next;
     if (converged) break;

@@ -17,6 +17,17 @@ namespace crfcal::effect {
 
 namespace {
 
+// Whether the search's free scale a can be the camera's exposure ratio: positive, finite (see physical()) and
+// inside the range the fitter itself considers (crf_fitter.hpp). The search's φ terms are linearised at the pair's
+// r (P_k = r·K⊗h_k(I) − h_k(B), effect_problem.cpp), so a free a far from r is outside the model's validity: on the
+// vivo X6S pair 3 (EXIF r 6.25, the images' own r 1.96) the free a fell to 0.0027 and was named an exposure-ratio
+// mismatch "r 0.0027". Tried first and dropped: the shots' brightness ratio as a bound (the verdict's interval of
+// r, curves g0^k with k in 1–1.6, excluded the planted r in 10 of 20 detector-form pairs of `bench effects --effect
+// exposure_ratio_mismatch`; even the side of 1 it implies was wrong in 6 of 20 — blur moves the quantiles).
+bool possibleExposureRatio(double a) {
+  return a > 0 && std::isfinite(a) && a >= kMinExposureRatio && a <= kMaxExposureRatio;
+}
+
 // The seed's model with r = r_EXIF gets its own best φ (the fitter with r fixed) before the local re-fit: a φ
 // fitted with a free r sits in a different valley (φ^γ trades with r^γ) that the local re-fit cannot leave, so
 // "r fixed" would be judged around the wrong φ. Falls back to the current φ when that fit fails.
@@ -94,8 +105,8 @@ void run(EffectSearch& search) {
   }
   const double a = search.coef[search.g_index].scale;
   const double rel = a / in.nominal_ratio - 1;
-  // a non-positive or non-finite scale is a runaway fit, not a ratio (see physical())
-  const bool beyond_tolerance = a > 0 && std::isfinite(a) && std::abs(rel) > options.ratio_tolerance;
+  const bool possible_ratio = possibleExposureRatio(a);
+  const bool beyond_tolerance = possible_ratio && std::abs(rel) > options.ratio_tolerance;
   Spec fixed = search.current;
   fixed.fixed_scale = true;
   fixed.scale = in.nominal_ratio;
@@ -113,7 +124,11 @@ void run(EffectSearch& search) {
   e.detail = fmt("fitted r %.4f vs nominal %.4f (%+.1f%%; tolerance of nominal EXIF values ", a, in.nominal_ratio,
                  100 * rel) +
              fmt("%.0f%%); ", 100 * options.ratio_tolerance) +
-             (beyond_tolerance ? "phi from the free-r fit" : "within tolerance: r = EXIF tested around the current phi");
+             (beyond_tolerance ? "phi from the free-r fit"
+              : possible_ratio  ? "within tolerance: r = EXIF tested around the current phi"
+                                : fmt("not a ratio: outside the %g-%g the fitter considers (a runaway of the "
+                                      "linearised search), not named; r = EXIF tested around the current phi",
+                                      kMinExposureRatio, kMaxExposureRatio));
   if (e.detected) attribute(search, around, fixed, fe, e);
 }
 

@@ -41,6 +41,10 @@
 
 namespace crfcal {
 
+// The exposure ratios the fitter considers: its closed-form r (Eq. 25) is clamped to [kMinExposureRatio,
+// kMaxExposureRatio] (4.3 stops either way; real pairs have r = 3–8, the benches up to 16).
+inline constexpr double kMinExposureRatio = 0.05, kMaxExposureRatio = 20.0;
+
 enum class CrfModelChoice { ggcm, emor, automatic };
 enum class CrfObjective { seed_intensity, moments };
 enum class CrfOptimizer { nelder_mead, levenberg_marquardt };
