@@ -1,7 +1,7 @@
 // The clipping model's plateau grid (Problem::fit → bestPlateau, calib/src/effect_problem.cpp) is searched coarse to
-// fine with early-stopped fits (stop 33, docs/RESULTS.md#speed-small). On residuals whose in-sample error has one
-// valley over the grid (a planted plateau of B, or none) it must choose the level the exhaustive grid of fully
-// converged fits chooses, with an in-sample error no larger to the LM's tolerance.
+// fine, its levels compared on paused LM runs (stop 33, docs/RESULTS.md#speed-small). On residuals with a planted
+// plateau of B (spread over several grid levels by noise, one case with two valleys of the in-sample error) or with
+// none, it must choose the level the exhaustive grid of full fits chooses, with the same fit to the bit.
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -25,7 +25,8 @@ double lookup(std::span<const double, emor::kSamples> f, double v) {
   return f[i] + (x - i) * (f[i + 1] - f[i]);
 }
 
-// One channel of the residual model with φ the identity: B = min(r X + noise, plateau) (plateau > 1: none), the φ
+// One channel of the residual model with φ the identity: B = min(r X, plateau) + noise (plateau > 1: none; the noise
+// spreads the plateau over several grid levels, as a JPEG's coding does), the φ
 // columns a₀ h_k(X) − h_k(B) of the EMoR terms and their slopes at B, as collect() forms them.
 Samples plateauSamples(double ratio, double plateau, unsigned seed) {
   std::mt19937 rng(seed);
@@ -41,7 +42,7 @@ Samples plateauSamples(double ratio, double plateau, unsigned seed) {
   for (int i = 0; i < emor::kSamples; ++i) s.phi[i] = double(i) / (emor::kSamples - 1);
   for (int i = 0; i < 6000; ++i) {
     const double x = irradiance(rng);
-    const double b = std::clamp(std::min(ratio * x + noise(rng), plateau), 0.0, 1.0);
+    const double b = std::clamp(std::min(ratio * x, plateau) + noise(rng), 0.0, 1.0);
     s.block.push_back(i % 64);
     s.fine.push_back(i % 256);
     s.fold.push_back(i % 2);
@@ -91,8 +92,8 @@ ChannelFit exhaustiveBest(const Problem& problem, const Spec& spec) {
   return best;
 }
 
-// The same level and, to the LM's tolerance, an in-sample error no larger (the LM's slow tail leaves either fit
-// ~10⁻⁶ above the minimum, and the coefficients along the φ terms' flat directions may differ by 10⁻²).
+// The same level and the same fit to the bit (the chosen level's paused LM runs on through the passes of an
+// uninterrupted run), so the same in-sample error.
 void expectSameChoiceAsExhaustiveGrid(double ratio, double plateau, unsigned seed) {
   const Problem problem({plateauSamples(ratio, plateau, seed)}, 64, 256, 0.05);
   Spec spec;
@@ -102,14 +103,16 @@ void expectSameChoiceAsExhaustiveGrid(double ratio, double plateau, unsigned see
   ASSERT_TRUE(exhaustive.ok);
   ASSERT_TRUE(searched.ok);
   EXPECT_EQ(searched.clip, exhaustive.clip) << "plateau " << plateau << ", seed " << seed;
-  const double e_exhaustive = inSampleError(problem, spec, exhaustive);
-  EXPECT_LE(inSampleError(problem, spec, searched), e_exhaustive * (1 + 1e-6)) << "plateau " << plateau << ", seed " << seed;
+  ASSERT_EQ(searched.theta.size(), exhaustive.theta.size());
+  for (Eigen::Index k = 0; k < searched.theta.size(); ++k)
+    EXPECT_EQ(searched.theta(k), exhaustive.theta(k)) << "coefficient " << k << ", plateau " << plateau;
+  EXPECT_EQ(inSampleError(problem, spec, searched), inSampleError(problem, spec, exhaustive));
 }
 
 TEST(EffectPlateauGrid, CoarseToFineSearchChoosesThePlantedPlateauLikeTheExhaustiveGrid) {
-  // plateaus reached by about 5 %, 10 % and 18 % of the samples (near the grid's 95, 90 and 80 % quantiles)
+  // plateaus reached by 2–18 % of the samples (between the grid's 98 and 80 % quantiles)
   for (unsigned seed : {1u, 2u})
-    for (double plateau : {0.90, 0.86, 0.78}) expectSameChoiceAsExhaustiveGrid(1.0, plateau, seed);
+    for (double plateau : {0.93, 0.91, 0.90, 0.88, 0.86, 0.82, 0.78}) expectSameChoiceAsExhaustiveGrid(1.0, plateau, seed);
 }
 
 TEST(EffectPlateauGrid, CoarseToFineSearchChoosesNoPlateauLikeTheExhaustiveGridOnUnclippedResiduals) {

@@ -157,9 +157,17 @@ struct PartFit {
 
 class Problem {
  public:
-  // The LM's stop: a pass that lowers the cost by less than this fraction (every fit that is reported or tested).
+  // The LM's stop: a pass that lowers the cost by less than this fraction (every fit that is reported or tested),
+  // or kFitPasses passes.
   static constexpr double kFitTolerance = 1e-9;
-  // The plateau grid's levels are compared on fits stopped here (bestPlateau); the chosen one runs on to
+  static constexpr int kFitPasses = 40;
+  // Where a paused Levenberg–Marquardt stands (a tolerance above kFitTolerance), to run it on later.
+  struct LmState {
+    double mu = 1e-3;        // damping
+    int iteration = 0;       // passes made
+    bool finished = true;    // stopped for good (kFitTolerance, kFitPasses, no improving step): nothing to run on
+  };
+  // The plateau grid's levels are compared on LM runs paused here (bestPlateau); the chosen one runs on to
   // kFitTolerance.
   static constexpr double kPlateauSelectionTolerance = 1e-6;
   Problem() = default;
@@ -212,9 +220,10 @@ class Problem {
   // Least squares of the intensity-scaled residuals on the samples `idx`, B's plateau at `clip` censored.
   // `rows`: the samples' design rows already formed (null: formed here).
   // `tolerance`: the LM stops when a pass lowers the cost by less than this fraction.
+  // `state`: where a paused run stands (in), where this one stopped (out); `start` then is the paused θ.
   ChannelFit fitLevel(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx, double clip,
                       const Eigen::VectorXd* start = nullptr, const DesignRows* rows = nullptr,
-                      double tolerance = kFitTolerance) const;
+                      double tolerance = kFitTolerance, LmState* state = nullptr) const;
   // One channel on one fold (−1: all samples); clipping: the plateau level chosen on a grid of B's quantiles.
   ChannelFit fit(const Samples& s, const Spec& spec, int fold, const Eigen::VectorXd* start = nullptr) const;
   // Residual φ(B) − Ŷ in intensity units (clipping: two-sided against the plateau).
@@ -242,7 +251,8 @@ class Problem {
   Eigen::VectorXd linearStart(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use, int cols,
                               const DesignRows* rows) const;
   void levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
-                          Eigen::VectorXd& theta, const DesignRows* rows, double tolerance) const;
+                          Eigen::VectorXd& theta, const DesignRows* rows, double tolerance,
+                          LmState* state) const;
   // The plateau level of `clips` (B intensity, 2: none) with the lowest in-sample error and its fit.
   ChannelFit bestPlateau(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx,
                          const std::vector<double>& clips, const Eigen::VectorXd* start,
