@@ -157,6 +157,19 @@ struct PartFit {
 
 class Problem {
  public:
+  // The LM's stop: a pass that lowers the cost by less than this fraction (every fit that is reported or tested),
+  // or kFitPasses passes.
+  static constexpr double kFitTolerance = 1e-9;
+  static constexpr int kFitPasses = 40;
+  // Where a paused Levenberg–Marquardt stands (a tolerance above kFitTolerance), to run it on later.
+  struct LmState {
+    double mu = 1e-3;        // damping
+    int iteration = 0;       // passes made
+    bool finished = true;    // stopped for good (kFitTolerance, kFitPasses, no improving step): nothing to run on
+  };
+  // The plateau grid's levels are compared on LM runs paused here (bestPlateau); the chosen one runs on to
+  // kFitTolerance.
+  static constexpr double kPlateauSelectionTolerance = 1e-6;
   Problem() = default;
   Problem(std::vector<Samples> samples, int blocks, int fine_blocks, double min_derivative)
       : s_(std::move(samples)), blocks_(blocks), fine_blocks_(fine_blocks), min_derivative_(min_derivative) {}
@@ -206,8 +219,11 @@ class Problem {
 
   // Least squares of the intensity-scaled residuals on the samples `idx`, B's plateau at `clip` censored.
   // `rows`: the samples' design rows already formed (null: formed here).
+  // `tolerance`: the LM stops when a pass lowers the cost by less than this fraction.
+  // `state`: where a paused run stands (in), where this one stopped (out); `start` then is the paused θ.
   ChannelFit fitLevel(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx, double clip,
-                      const Eigen::VectorXd* start = nullptr, const DesignRows* rows = nullptr) const;
+                      const Eigen::VectorXd* start = nullptr, const DesignRows* rows = nullptr,
+                      double tolerance = kFitTolerance, LmState* state = nullptr) const;
   // One channel on one fold (−1: all samples); clipping: the plateau level chosen on a grid of B's quantiles.
   ChannelFit fit(const Samples& s, const Spec& spec, int fold, const Eigen::VectorXd* start = nullptr) const;
   // Residual φ(B) − Ŷ in intensity units (clipping: two-sided against the plateau).
@@ -235,7 +251,12 @@ class Problem {
   Eigen::VectorXd linearStart(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use, int cols,
                               const DesignRows* rows) const;
   void levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
-                          Eigen::VectorXd& theta, const DesignRows* rows) const;
+                          Eigen::VectorXd& theta, const DesignRows* rows, double tolerance,
+                          LmState* state) const;
+  // The plateau level of `clips` (B intensity, 2: none) with the lowest in-sample error and its fit.
+  ChannelFit bestPlateau(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx,
+                         const std::vector<double>& clips, const Eigen::VectorXd* start,
+                         const DesignRows& rows) const;
   void heldoutResiduals(const Spec& spec, const std::array<PartFit, 2>& folds, Evaluation& ev) const;
   // The design row of sample i and its target: from `rows` when formed, else row() into `buffer`.
   const double* designRow(const Samples& s, std::size_t i, const Spec& spec, const DesignRows* rows, double* buffer,
@@ -248,6 +269,10 @@ class Problem {
   static thread_local const std::vector<std::vector<double>>* coupled_;
   double min_derivative_ = 0.05;
 };
+
+// The clipping model's plateau levels for the samples `idx`: 2 (none, the nested base model) and B's 100, 99.9,
+// 99.5, 99, 98, 97, 95, 93, 90, 85 and 80 % quantiles, descending, without repeats.
+std::vector<double> plateauGrid(const Samples& s, const std::vector<std::size_t>& idx);
 
 // The fitted coefficients of a spec, by meaning.
 struct Coefficients {
