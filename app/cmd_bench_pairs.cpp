@@ -76,6 +76,12 @@ struct PairsArgs {
   std::string band_replicate_ratio = PairCalibrationOptions{}.band.replicates_combine_ratio ? "combined" : "own";
   // The band's ratio term (band_ratio_term.hpp; CurveBandOptions::include_ratio_term): "on" or "off".
   std::string band_ratio_term = PairCalibrationOptions{}.band.include_ratio_term ? "on" : "off";
+  // The band's prior term (CurveBandOptions::include_prior_term): "on" or "off".
+  std::string band_prior_term = PairCalibrationOptions{}.band.include_prior_term ? "on" : "off";
+  // The band's offset term at r = 1 (CurveBandOptions::include_offset_term): "on" or "off".
+  std::string band_offset_term = PairCalibrationOptions{}.band.include_offset_term ? "on" : "off";
+  // σ of the ratio term (CurveBandOptions::ratio_term_sigma): "birge" or "disagreement".
+  std::string band_ratio_sigma = "birge";  // or "disagreement", "disagreement-shift" (RatioTermSigma)
   bool force = false;  // write into an output directory holding other files (never deletes them)
   std::string regime = "auto";  // auto | sharp-normal | real (see the top of this file); auto = real for r > 2
   std::string noise_camera = "LGE Nexus 5";  // real regime: darktable's only phone (real pairs are phone pairs)
@@ -302,6 +308,11 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.band.replicates = args.band_replicates;
   options.band.replicates_combine_ratio = args.band_replicate_ratio == "combined";
   options.band.include_ratio_term = args.band_ratio_term == "on";
+  options.band.include_prior_term = args.band_prior_term == "on";
+  options.band.include_offset_term = args.band_offset_term == "on";
+  options.band.ratio_term_sigma = args.band_ratio_sigma == "disagreement"         ? RatioTermSigma::disagreement
+                                  : args.band_ratio_sigma == "disagreement-shift" ? RatioTermSigma::disagreement_shift
+                                                                                  : RatioTermSigma::birge;
   return options;
 }
 
@@ -486,7 +497,8 @@ struct PairsRun {
                        {"replicate_images_ratios_over_true", scaled(band.replicate_images_ratios, 1 / c.ratio)},
                        {"seconds", band.seconds}, {"summary", band.summary()},
                        {"ratio_log_sigma", band.ratio_log_sigma}, {"shape_half_width", band.shape_half_width},
-                       {"ratio_half_width", band.ratio_half_width}};
+                       {"ratio_half_width", band.ratio_half_width}, {"prior_half_width", band.prior_half_width},
+                       {"offset_half_width", band.offset_half_width}};
     }
     if (r.verdicts.count("G")) {
       s.verdict = toString(r.verdicts.at("G").level);
@@ -753,6 +765,23 @@ const BenchRegistration registration(
       command.add_option("--band-ratio-term", args->band_ratio_term,
                          "The band's ratio term: the error of r every half-sample shares, scaled by how well the "
                          "images' r and EXIF agree, through fits at r held a sigma away (on) or none (off)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"on", "off"}));
+      command.add_option("--band-ratio-sigma", args->band_ratio_sigma,
+                         "sigma of log r in the band's ratio term: birge (the a-priori sigma scaled by the images' "
+                         "and EXIF's agreement) or disagreement (EXIF's stated sigma believed, the images' sigma "
+                         "estimated from their distance to EXIF) or disagreement-shift (that rule's expected error "
+                         "of r alone)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"birge", "disagreement", "disagreement-shift"}));
+      command.add_option("--band-offset-term", args->band_offset_term,
+                         "The band's offset term at r = 1: the offset a + b*phi that Eq. 4 leaves free there, bounded "
+                         "by phi at the bottom of the covered range (on) or none (off)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"on", "off"}));
+      command.add_option("--band-prior-term", args->band_prior_term,
+                         "The band's prior term: phi's difference to a refit without the extrapolation priors, which "
+                         "every half-sample shares (on) or none (off)")
           ->capture_default_str()
           ->check(CLI::IsMember({"on", "off"}));
       command.add_flag("--pairs-only", args->pairs_only, "Only write the pairs (no calibration)");

@@ -9,16 +9,46 @@
 
 namespace crfcal {
 
+namespace {
+
+// What the halves carry of log r: w·σ_resampled when they combine as the pair did, else their own spread.
+double carriedByHalves(const RatioEvidence& evidence, const RatioTermInputs& inputs) {
+  return (inputs.reported_from_evidence && inputs.halves_combine ? evidence.images_weight : 1.0) *
+         evidence.resampled_log_sigma;
+}
+
+// RatioTermSigma::disagreement (band_ratio_term.hpp): EXIF's σ believed, the images' σ from |Δ|.
+double unseenFromDisagreement(const RatioEvidence& evidence, const RatioTermInputs& inputs) {
+  if (!(evidence.images_ratio > 0 && evidence.nominal_ratio > 0 && evidence.nominal_log_sigma > 0)) return 0;
+  const double delta = std::log(evidence.images_ratio / evidence.nominal_ratio);
+  const double var_nominal = evidence.nominal_log_sigma * evidence.nominal_log_sigma;
+  const double resampled = evidence.resampled_log_sigma;
+  const double var_images = std::max(resampled * resampled, delta * delta - var_nominal);
+  const double images_weight = var_nominal / (var_images + var_nominal);  // ŵ, the weight those σ would give
+  // The reported r's weight on the images: the combination's, or 1 when the images' own r was reported.
+  const double reported_weight = inputs.reported_from_evidence ? evidence.images_weight : 1.0;
+  const double mean = (reported_weight - images_weight) * delta;
+  const double variance = var_images * var_nominal / (var_images + var_nominal);
+  const double carried = carriedByHalves(evidence, inputs);
+  const double z = studentQuantile(0.5 + inputs.level / 2, 0);
+  if (inputs.sigma == RatioTermSigma::disagreement_shift) return std::abs(mean) / z;
+  return std::abs(mean) / z + std::sqrt(std::max(0.0, variance - carried * carried));
+}
+
+}  // namespace
+
 double ratioLogSigmaUnseenByHalves(const RatioEvidence& evidence, const RatioTermInputs& inputs) {
   if (!evidence.combined) return 0;
-  const double resampled = evidence.resampled_log_sigma;
+  const bool combined = evidence.decision == RatioDecision::combined;
+  if (inputs.sigma != RatioTermSigma::birge && combined) {
+    const double unseen = unseenFromDisagreement(evidence, inputs);
+    return std::isfinite(unseen) ? unseen : 0.0;
+  }
   // The reported r: the evidence's posterior, or the images' own r (the combination did not move it enough to refit).
   const double reported = inputs.reported_from_evidence ? evidence.log_sigma : evidence.images_log_sigma;
-  // What the halves carry of log r: w·σ_resampled when they combine as the pair did, else their own spread.
-  const double carried = (inputs.reported_from_evidence && inputs.halves_combine ? evidence.images_weight : 1.0) *
-                         resampled;
+  const double carried = carriedByHalves(evidence, inputs);
   double unseen = std::sqrt(std::max(0.0, reported * reported - carried * carried));
-  if (inputs.consistency_scale && evidence.decision == RatioDecision::combined) unseen *= evidence.conflict_sigmas;
+  if (inputs.consistency_scale && combined) unseen *= evidence.conflict_sigmas;
   return std::isfinite(unseen) ? unseen : 0.0;
 }
 

@@ -102,6 +102,7 @@ void CurveBandOptions::check() const {
   if (!(exponent_floor > 0 && exponent_ceiling >= exponent_floor))
     throw InvalidInput("band: need 0 < exponent_floor <= exponent_ceiling");
   if (!(exponent_rise_factor >= 1)) throw InvalidInput("band: exponent_rise_factor must be >= 1");
+  if (!(offset_term_max_log_ratio >= 0)) throw InvalidInput("band: offset_term_max_log_ratio must be >= 0");
 }
 
 std::string CurveBand::summary() const {
@@ -360,6 +361,45 @@ HalfSampleRefits refitOnHalfSamples(const cv::Mat& sharp, const cv::Mat& blurred
   return refits;
 }
 
+std::vector<double> priorTermHalfWidth(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
+                                       const CrfFitOptions& fit_options, const CrfFitResult& fit,
+                                       std::pair<double, double> covered) {
+  const int n = static_cast<int>(fit.inverse_crf.size());
+  if (n < 16 || !(fit.ratio > 0)) return {};
+  CrfFitOptions o = fit_options;
+  o.exponent_smoothness = 0;
+  o.shoulder_prior = 0;
+  o.learned_prior.reset();
+  o.progress = nullptr;
+  std::vector<CrfFitResult> free;
+  try {
+    free = fitInverseCrfAtHeldRatios(sharp, blurred, kernel, o, {fit.ratio});
+  } catch (const InvalidInput&) {
+    return {};
+  }
+  if (free.size() != 1 || static_cast<int>(free[0].inverse_crf.size()) != n) return {};
+  const std::vector<double>& curve = free[0].inverse_crf;
+  const int i0 = sampleIndex(covered.first, n), i1 = std::max(sampleIndex(covered.second, n), i0 + 1);
+  const double a = alignmentFactor(fit.inverse_crf, curve, i0, i1);
+  std::vector<double> half_width(n);
+  for (int i = 0; i < n; ++i) half_width[i] = std::abs(a * curve[i] - fit.inverse_crf[i]);
+  return half_width;
+}
+
+std::vector<double> offsetTermHalfWidth(const std::vector<double>& phi, std::pair<double, double> covered,
+                                        double level) {
+  const int n = static_cast<int>(phi.size());
+  if (n < 16) throw InvalidInput("band: the curve needs at least 16 samples", ErrorSubject::curve);
+  const int i0 = sampleIndex(covered.first, n), i1 = std::max(sampleIndex(covered.second, n), i0 + 1);
+  double sum = 0, sum_squares = 0;
+  for (int i = i0; i <= i1; ++i) sum += phi[i], sum_squares += phi[i] * phi[i];
+  std::vector<double> half_width(n, 0.0);
+  if (!(sum_squares > 0)) return half_width;
+  const double offset = level * std::max(phi[i0], 0.0);  // the uniform bound's central interval
+  for (int i = 0; i < n; ++i) half_width[i] = offset * std::abs(1 - phi[i] * sum / sum_squares);
+  return half_width;
+}
+
 CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
                             const CrfFitOptions& fit_options, const CrfFitResult& fit,
                             std::pair<double, double> covered, const CurveBandOptions& options,
@@ -390,20 +430,33 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
                                     options.level);
   std::vector<std::vector<double>> systematic;
   if (!ratio_term.empty()) systematic.push_back(ratio_term);
+  // The priors' share, which every half carries alike (from the refits' options: the estimator the band resamples).
+  std::vector<double> prior_term;
+  if (options.include_prior_term)
+    prior_term = priorTermHalfWidth(sharp, blurred, kernel, refit_options, fit, covered);
+  if (!prior_term.empty()) systematic.push_back(prior_term);
+  // The offset Eq. 4 leaves free at r = 1, which the halves' shared extrapolation to φ(0) = 0 fixes alike.
+  std::vector<double> offset_term;
+  if (options.include_offset_term && fit.ratio > 0 &&
+      std::abs(std::log(fit.ratio)) <= options.offset_term_max_log_ratio)
+    offset_term = offsetTermHalfWidth(fit.inverse_crf, covered, options.level);
+  if (!offset_term.empty()) systematic.push_back(offset_term);
   CurveBand band = bandFromReplicates(fit.inverse_crf, curves, covered, options, alternatives, systematic);
   band.failed_replicates = failed;
   if (!ratio_term.empty()) {
     band.ratio_half_width = std::move(ratio_term);
     band.ratio_log_sigma = ratio_log_sigma;
   }
+  band.prior_half_width = std::move(prior_term);
+  band.offset_half_width = std::move(offset_term);
   const int n = static_cast<int>(fit.inverse_crf.size());
   const int i0 = sampleIndex(covered.first, n), i1 = std::max(sampleIndex(covered.second, n), i0 + 1);
   if (ratio_rule && refits.images_curves.size() >= 2) {
     band.images_ratio_half_width =
         shapeHalfWidthWithModel(fit.inverse_crf, refits.images_curves, i0, i1, options, alternatives);
-  } else if (!band.ratio_half_width.empty()) {
-    // Without a rule the refits fitted their own r: their half-width before the ratio term is the images' own
-    // (the verdict's reading, unchanged by the term).
+  } else if (!systematic.empty()) {
+    // Without a rule the refits fitted their own r: their half-width before the ratio and prior terms is the
+    // images' own (the verdict's reading, unchanged by the terms).
     band.images_ratio_half_width = shapeHalfWidthWithModel(fit.inverse_crf, curves, i0, i1, options, alternatives);
   }
   band.replicate_ratios = refits.ratios;

@@ -32,6 +32,8 @@ void estimateBands(PairCalibrationState& state) {
   RatioTermInputs ratio_inputs;
   ratio_inputs.reported_from_evidence = result.ratio_from_evidence;
   ratio_inputs.halves_combine = ratio_rule.has_value();
+  ratio_inputs.sigma = state.options.band.ratio_term_sigma;
+  ratio_inputs.level = state.options.band.level;
   // A σ below the evidence's own threshold of a worthwhile change of r (0.5 %) is not worth two fits: at r = 1 the
   // floor is ~1e-4 (0.072·|log r_images| with r_images within 0.7 % of 1) and φ would move by ~1e-6.
   double ratio_log_sigma = ratioLogSigmaUnseenByHalves(result.ratio_evidence, ratio_inputs);

@@ -28,6 +28,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "crfcal/band_ratio_term.hpp"
 #include "crfcal/crf_fitter.hpp"
 
 namespace crfcal {
@@ -70,6 +71,23 @@ struct CurveBandOptions {
   // (docs/RESULTS.md#band-ratio-term) it lifts the shape coverage at r = 8 from 83.1 % to 98.9 % but also at r = 4
   // from 91.0 % (met) to 99.6 %: the a-priori σ (EXIF's 0.13) are 2–3× the bench's r errors where the estimates agree.
   bool include_ratio_term = false;
+  // Which σ of log r the ratio term carries (band_ratio_term.hpp): birge (stop 32: the a-priori σ scaled by the
+  // two estimates' agreement) or disagreement (EXIF's stated σ believed, the images' σ estimated from how far the
+  // images' r lies from EXIF; docs/RESULTS.md#band-ratio-disagreement). Measured with disagreement: r = 4 99.3 %,
+  // r = 8 98.7 % shape coverage (birge 99.6 / 98.9 %), narrower at r = 4 (0.0080 against 0.0115): still over.
+  RatioTermSigma ratio_term_sigma = RatioTermSigma::birge;
+  // Add the priors' share of φ (priorTermHalfWidth below): φ refitted on all the data at the fit's r without the
+  // extrapolation priors, scale-aligned, its difference added like the model term. Every half-sample refit carries
+  // the same priors, so where they decide φ (the affine freedom a + bφ of Eq. 4 at r = 1, the thin top of the
+  // covered range under the shoulder prior) the halves agree and the band cannot see it. One more fit per channel.
+  // Off: measured, it adds < 0.5 % coverage at r = 1, 4, 8 (refitted from the fit, φ does not move).
+  bool include_prior_term = false;
+  // Add the offset Eq. 4 leaves free at r = 1 (offsetTermHalfWidth below): with ΣK = 1 and r = 1, φ → a + bφ fits
+  // the pair as well, so the offset over the covered range is set by the extrapolation to φ(0) = 0 below the data,
+  // identically in every half. Only when |log r| ≤ offset_term_max_log_ratio: at r ≠ 1 the offset changes Eq. 4 by
+  // a·(r − 1) and the data fix it (0.05: the offset then moves B by under 5 % of itself).
+  bool include_offset_term = false;
+  double offset_term_max_log_ratio = 0.05;
   std::uint64_t seed = 1;  // the blocks' half-samples (deterministic)
   void check() const;      // throws InvalidInput
 };
@@ -87,6 +105,10 @@ struct CurveBand {
   std::vector<double> images_ratio_half_width;
   // The ratio term (band_ratio_term.hpp) inside shape_half_width: z·σ_r(x), kCurveSamples samples; empty without it.
   std::vector<double> ratio_half_width;
+  // The prior term (CurveBandOptions::include_prior_term) inside shape_half_width; empty without it.
+  std::vector<double> prior_half_width;
+  // The offset term (CurveBandOptions::include_offset_term) inside shape_half_width; empty without it.
+  std::vector<double> offset_half_width;
   double ratio_log_sigma = 0;  // σ of log r it was computed for (0: none)
   std::pair<double, double> covered{0, 1};  // the covered range the band was built for
   std::pair<double, double> scale_range{1, 1};  // factors s with φ_true ≈ s·φ on the covered range
@@ -168,6 +190,25 @@ CurveBand estimateCurveBand(const cv::Mat& sharp, const cv::Mat& blurred, const 
                             std::pair<double, double> covered, const CurveBandOptions& options = {},
                             const std::optional<ReplicateRatioRule>& ratio_rule = std::nullopt,
                             double ratio_log_sigma = 0);
+
+// The priors' share of φ (CurveBandOptions::include_prior_term): |a·φ_free − φ| with φ_free refitted with
+// `fit_options` (the band's refit options: the chosen model, started from `fit`) at r held at fit.ratio and without
+// the extrapolation priors (exponent_smoothness, shoulder_prior, the learned prior; min_local_exponent, which only
+// removes degenerate curves, kept), a its best common scale onto φ over the covered range. Started from the fit, the
+// refit moves only as far as the data pull against the priors: 0 where the data decide φ. kCurveSamples samples;
+// empty when the refit throws InvalidInput or is invalid (the band then goes without the term).
+std::vector<double> priorTermHalfWidth(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& kernel,
+                                       const CrfFitOptions& fit_options, const CrfFitResult& fit,
+                                       std::pair<double, double> covered);
+
+// The offset term (CurveBandOptions::include_offset_term): at r = 1 the truth may differ from φ by an offset c over
+// the covered range [x_lo, x_hi] that the data cannot see. Below the data φ only has to fall monotonically to
+// φ(0) = 0, so the true φ(x_lo) lies between 0 and about 2·φ(x_lo): |c| ≤ φ(x_lo), taken as uniform, whose central
+// `level` interval is |c| ≤ level·φ(x_lo). After the shape band's best common scale (least squares over the covered
+// range), an offset c leaves the deviation c·(1 − φ(x)·Σφ / Σφ²), so the half-width is
+// level·φ(x_lo)·|1 − φ(x)·Σφ / Σφ²| (sums over the covered range). kCurveSamples samples. Pure arithmetic on φ.
+std::vector<double> offsetTermHalfWidth(const std::vector<double>& phi, std::pair<double, double> covered,
+                                        double level);
 
 // How a band fares against a known truth (the benches): x samples of the truth inside the band, counted inside,
 // above and below the band's covered range; inside, also the SHAPE band: |a·truth − φ| ≤ shape_half_width with a
