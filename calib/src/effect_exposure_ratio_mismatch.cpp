@@ -17,17 +17,6 @@ namespace crfcal::effect {
 
 namespace {
 
-// Whether the search's free scale a can be the camera's exposure ratio: positive, finite (see physical()) and
-// inside the range the fitter itself considers (crf_fitter.hpp). The search's φ terms are linearised at the pair's
-// r (P_k = r·K⊗h_k(I) − h_k(B), effect_problem.cpp), so a free a far from r is outside the model's validity: on the
-// vivo X6S pair 3 (EXIF r 6.25, the images' own r 1.96) the free a fell to 0.0027 and was named an exposure-ratio
-// mismatch "r 0.0027". Tried first and dropped: the shots' brightness ratio as a bound (the verdict's interval of
-// r, curves g0^k with k in 1–1.6, excluded the planted r in 10 of 20 detector-form pairs of `bench effects --effect
-// exposure_ratio_mismatch`; even the side of 1 it implies was wrong in 6 of 20 — blur moves the quantiles).
-bool possibleExposureRatio(double a) {
-  return a > 0 && std::isfinite(a) && a >= kMinExposureRatio && a <= kMaxExposureRatio;
-}
-
 // The seed's model with r = r_EXIF gets its own best φ (the fitter with r fixed) before the local re-fit: a φ
 // fitted with a free r sits in a different valley (φ^γ trades with r^γ) that the local re-fit cannot leave, so
 // "r fixed" would be judged around the wrong φ. Falls back to the current φ when that fit fails.
@@ -105,7 +94,11 @@ void run(EffectSearch& search) {
   }
   const double a = search.coef[search.g_index].scale;
   const double rel = a / in.nominal_ratio - 1;
-  const bool possible_ratio = possibleExposureRatio(a);
+  // A free a outside the fitter's range is a runaway of the linearised search, not a ratio (vivo X6S pair 3: EXIF r
+  // 6.25, the images' own r 1.96, a = 0.0027). Tried first and dropped: the shots' brightness ratio as a bound (the
+  // verdict's interval of r excluded the planted r in 10 of 20 detector-form pairs; even the side of 1 it implies
+  // was wrong in 6 of 20 — blur moves the quantiles; docs/RESULTS.md#effects-runaway-ratio).
+  const bool possible_ratio = fittableExposureRatio(a);
   const bool beyond_tolerance = possible_ratio && std::abs(rel) > options.ratio_tolerance;
   Spec fixed = search.current;
   fixed.fixed_scale = true;
