@@ -14,22 +14,10 @@
 namespace crfcal {
 namespace {
 
-RatioEvidence evidence(double images_sigma, double resampled_sigma, double nominal_sigma, double log_difference) {
-  RatioEvidence e;
-  e.combined = true;
-  e.decision = RatioDecision::combined;
-  e.images_log_sigma = images_sigma;
-  e.resampled_log_sigma = resampled_sigma;
-  e.nominal_log_sigma = nominal_sigma;
-  const double wi = 1 / (images_sigma * images_sigma), wn = 1 / (nominal_sigma * nominal_sigma);
-  e.images_weight = wi / (wi + wn);
-  e.log_sigma = 1 / std::sqrt(wi + wn);
-  e.conflict_sigmas = std::abs(log_difference) / std::hypot(images_sigma, nominal_sigma);
-  return e;
-}
 
 TEST(BandRatioTerm, UnseenSigmaIsThePosteriorsLessWhatTheHalvesCarryScaledByTheEstimatesAgreement) {
-  const RatioEvidence agree = evidence(0.15, 0.03, 0.13, 0.0), differ = evidence(0.15, 0.03, 0.13, 0.4);
+  const RatioEvidence agree = test::combinedRatioEvidence(0.15, 0.03, 0.13, 0.0),
+                      differ = test::combinedRatioEvidence(0.15, 0.03, 0.13, 0.4);
   RatioTermInputs combined{true, true, false};  // the a-priori σ, not scaled
   const double w = agree.images_weight, expected = std::sqrt(agree.log_sigma * agree.log_sigma - w * w * 0.03 * 0.03);
   EXPECT_NEAR(ratioLogSigmaUnseenByHalves(agree, combined), expected, 1e-12);

@@ -18,24 +18,6 @@ namespace {
 
 constexpr double kZ90 = 1.6448536269514722;  // the normal quantile of a 90 % band
 
-// Evidence combined from the images' r (σ_images, of which σ_resampled measured) and EXIF (σ_nominal), the images'
-// r e^{log_difference} times EXIF's.
-RatioEvidence evidence(double images_sigma, double resampled_sigma, double nominal_sigma, double log_difference) {
-  RatioEvidence e;
-  e.combined = true;
-  e.decision = RatioDecision::combined;
-  e.images_log_sigma = images_sigma;
-  e.resampled_log_sigma = resampled_sigma;
-  e.nominal_log_sigma = nominal_sigma;
-  e.nominal_ratio = 8;
-  e.images_ratio = 8 * std::exp(log_difference);
-  const double wi = 1 / (images_sigma * images_sigma), wn = 1 / (nominal_sigma * nominal_sigma);
-  e.images_weight = wi / (wi + wn);
-  e.log_sigma = 1 / std::sqrt(wi + wn);
-  e.conflict_sigmas = std::abs(log_difference) / std::hypot(images_sigma, nominal_sigma);
-  return e;
-}
-
 RatioTermInputs disagreementInputs() {
   RatioTermInputs inputs;
   inputs.reported_from_evidence = true;
@@ -47,7 +29,7 @@ RatioTermInputs disagreementInputs() {
 TEST(BandRatioDisagreement, ImagesWithinExifsSigmaAreTakenAsRightAndTheTermIsThePullTowardsExif) {
   // |Δ| = 0.04 < σ_nominal = 0.13: the images' σ is their resampled spread (0.01), their weight ŵ ≈ 1, so the
   // reported combination's error is its pull towards EXIF, (ŵ − w)·Δ, plus the spread the halves do not carry.
-  const RatioEvidence e = evidence(0.10, 0.01, 0.13, -0.04);
+  const RatioEvidence e = test::combinedRatioEvidence(0.10, 0.01, 0.13, -0.04);
   const double vi = 0.01 * 0.01, vn = 0.13 * 0.13, w_hat = vn / (vi + vn), w = e.images_weight;
   const double shift = std::abs((w - w_hat) * -0.04);
   const double spread = std::sqrt(std::max(0.0, vi * vn / (vi + vn) - w * w * vi));
@@ -59,14 +41,15 @@ TEST(BandRatioDisagreement, ImagesWithinExifsSigmaAreTakenAsRightAndTheTermIsThe
   birge.sigma = RatioTermSigma::birge;
   EXPECT_LT(ratioLogSigmaUnseenByHalves(e, disagreementInputs()), ratioLogSigmaUnseenByHalves(e, birge));
   // Identical estimates: only the spread is left.
-  EXPECT_NEAR(ratioLogSigmaUnseenByHalves(evidence(0.10, 0.01, 0.13, 0.0), disagreementInputs()), spread, 1e-12);
+  EXPECT_NEAR(ratioLogSigmaUnseenByHalves(test::combinedRatioEvidence(0.10, 0.01, 0.13, 0.0), disagreementInputs()),
+              spread, 1e-12);
 }
 
 TEST(BandRatioDisagreement, TheShiftRuleKeepsOnlyTheExpectedErrorOfTheReportedRatio) {
   RatioTermInputs shift = disagreementInputs();
   shift.sigma = RatioTermSigma::disagreement_shift;
   for (const double delta : {-0.04, 0.0, 0.4}) {
-    const RatioEvidence e = evidence(0.2, 0.03, 0.13, delta);
+    const RatioEvidence e = test::combinedRatioEvidence(0.2, 0.03, 0.13, delta);
     const double vi = std::max(0.03 * 0.03, delta * delta - 0.13 * 0.13), vn = 0.13 * 0.13;
     EXPECT_NEAR(ratioLogSigmaUnseenByHalves(e, shift), std::abs((e.images_weight - vn / (vi + vn)) * delta) / kZ90,
                 1e-12)
@@ -80,7 +63,7 @@ TEST(BandRatioDisagreement, ADisagreementBeyondExifsSigmaIsChargedToTheImagesAnd
   // (images' weight w = 0.3 by the a-priori σ) is then off by (w − ŵ)·Δ on average, with the conditional spread.
   double previous = 0;
   for (const double delta : {0.15, 0.25, 0.4}) {
-    const RatioEvidence e = evidence(0.2, 0.03, 0.13, delta);
+    const RatioEvidence e = test::combinedRatioEvidence(0.2, 0.03, 0.13, delta);
     const double vi = delta * delta - 0.13 * 0.13, vn = 0.13 * 0.13, w_hat = vn / (vi + vn), w = e.images_weight;
     const double expected = std::abs((w - w_hat) * delta) / kZ90 +
                             std::sqrt(vi * vn / (vi + vn) - w * w * 0.03 * 0.03);
@@ -98,9 +81,9 @@ TEST(BandRatioDisagreement, TheImagesOwnReportedRatioAndArbitratedConflictsAreHa
   RatioTermInputs own = disagreementInputs();
   own.reported_from_evidence = false;
   own.halves_combine = false;
-  EXPECT_NEAR(ratioLogSigmaUnseenByHalves(evidence(0.10, 0.01, 0.13, -0.04), own), 0.0, 2e-4);
+  EXPECT_NEAR(ratioLogSigmaUnseenByHalves(test::combinedRatioEvidence(0.10, 0.01, 0.13, -0.04), own), 0.0, 2e-4);
   // A conflict the brightness arbitrated: the birge rule (S = 1 there), not evidence about σ.
-  RatioEvidence held = evidence(0.15, 0.03, 0.13, 0.6);
+  RatioEvidence held = test::combinedRatioEvidence(0.15, 0.03, 0.13, 0.6);
   held.decision = RatioDecision::nominal_held;
   held.log_sigma = 0.13;
   held.images_weight = 0;

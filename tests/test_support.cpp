@@ -1,6 +1,7 @@
 #include "test_support.hpp"
 
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <random>
@@ -54,6 +55,23 @@ CommandResult run(const std::string& command_line) {
   const int status = ::pclose(pipe);
   result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return result;
+}
+
+RatioEvidence combinedRatioEvidence(double images_sigma, double resampled_sigma, double nominal_sigma,
+                                    double log_difference) {
+  RatioEvidence e;
+  e.combined = true;
+  e.decision = RatioDecision::combined;
+  e.images_log_sigma = images_sigma;
+  e.resampled_log_sigma = resampled_sigma;
+  e.nominal_log_sigma = nominal_sigma;
+  e.nominal_ratio = 8;
+  e.images_ratio = 8 * std::exp(log_difference);
+  const double wi = 1 / (images_sigma * images_sigma), wn = 1 / (nominal_sigma * nominal_sigma);
+  e.images_weight = wi / (wi + wn);
+  e.log_sigma = 1 / std::sqrt(wi + wn);
+  e.conflict_sigmas = std::abs(log_difference) / std::hypot(images_sigma, nominal_sigma);
+  return e;
 }
 
 }  // namespace crfcal::test

@@ -5,6 +5,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "crfcal/ratio_evidence.hpp"
 #include "crfcal/simulation.hpp"
 
 namespace crfcal::test {
@@ -17,6 +18,10 @@ cv::Mat levinKernel(int index);             // samples/levin09/kernel0<index>.tx
 // A synthetic pair at r = 4 for the band's tests: gamma 2.2, Levin image 2 at a fifth of its brightness, Levin
 // kernel 3, noise variance 2·10⁻⁴ (the kernel is levinKernel(3)).
 SimulationResult gammaPairAtRatio4();
+// Ratio evidence combined from the images' r (σ_images, of which σ_resampled measured by the half-samples) and EXIF's
+// 8 (σ_nominal), the images' r e^{log_difference} times EXIF's: the inputs of the band's ratio-term tests.
+RatioEvidence combinedRatioEvidence(double images_sigma, double resampled_sigma, double nominal_sigma,
+                                    double log_difference);
 
 // A fresh temporary directory removed when the object dies.
 class TempDir {
