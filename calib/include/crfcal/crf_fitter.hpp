@@ -41,8 +41,9 @@
 
 namespace crfcal {
 
-// The exposure ratios the fitter considers: its closed-form r (Eq. 25) is clamped to [kMinExposureRatio,
-// kMaxExposureRatio] (4.3 stops either way; real pairs have r = 3–8, the benches up to 16).
+// The exposure ratios crfcal considers (4.3 stops either way; real pairs have r = 3–8, the benches up to 16): the
+// fitter's closed-form r (Eq. 25, EMoR and the seed's alternation) is clamped to them, and the effect search takes a
+// free r outside them for a runaway of its linearised model (effect_problem.hpp, fittableExposureRatio).
 inline constexpr double kMinExposureRatio = 0.05, kMaxExposureRatio = 20.0;
 
 enum class CrfModelChoice { ggcm, emor, automatic };
