@@ -559,11 +559,8 @@ void addBands(const Samples& samples, const std::vector<int>& planes, const std:
   }
 }
 
-}  // namespace
-
-BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frames,
-                                          const BracketCalibrationOptions& options, const BracketProgress& progress) {
-  options.check();
+// The frames' count, planes and exposures checked; returns whether their exposures are known (all or none).
+bool checkFrames(const std::vector<BracketFrame>& frames) {
   if (frames.size() < 2) throw InvalidInput("a bracket needs at least 2 frames", ErrorSubject::pair);
   int known = 0;
   for (const auto& f : frames) {
@@ -576,9 +573,12 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
     throw InvalidInput("exposures are known for " + std::to_string(known) + " of " + std::to_string(frames.size()) +
                            " frames; give all or none",
                        ErrorSubject::pair);
-  BracketCalibrationResult result;
-  result.exposure_source = known ? "exif" : "images";
-  // Reference: the middle exposure (given), else the middle frame; the others are registered onto it.
+  return known > 0;
+}
+
+// The reference frame — the middle exposure (given), else the middle frame; the others are registered onto it —
+// and one result row per frame, with a warning for frames of the same exposure.
+int listFrames(const std::vector<BracketFrame>& frames, bool known, BracketCalibrationResult& result) {
   std::vector<int> order(frames.size());
   std::iota(order.begin(), order.end(), 0);
   if (known)
@@ -598,6 +598,74 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
         if (std::abs(std::log(frames[j].exposure / frames[k].exposure)) < std::log(1.05))
           result.warnings.push_back(frames[j].name + " and " + frames[k].name +
                                     " have the same exposure: the pair adds no range, only noise averaging");
+  return reference;
+}
+
+// The start exposures relative to the reference frame: EXIF's when known, else estimated from the images.
+std::vector<double> startExposures(const std::vector<BracketFrame>& frames, bool known, int reference,
+                                   const std::vector<cv::Mat>& greys, BracketCalibrationResult& result) {
+  std::vector<double> start(frames.size());
+  if (known) {
+    for (std::size_t j = 0; j < frames.size(); ++j) start[j] = frames[j].exposure / frames[static_cast<size_t>(reference)].exposure;
+    return start;
+  }
+  result.warnings.push_back(
+      "no EXIF exposures: the start exposures come from the images through the EMoR mean curve, one free scale "
+      "per frame; the curve's overall exponent rests on that estimate (the bracket alone cannot fix it, Grossberg & "
+      "Nayar 2003)");
+  return exposuresFromImages(greys, reference);
+}
+
+// The channels' fits alternated with the exposures' refinement (options.exposure_rounds, with ≥ 3 frames); the
+// number of EMoR terms is chosen by cross-validation in the first round and kept in the refits. Returns the
+// refined exposures.
+std::vector<double> fitChannelsAndExposures(const Samples& samples, const std::vector<int>& channels,
+                                            const std::vector<int>& planes, const std::vector<double>& start,
+                                            std::size_t frame_count, const BracketCalibrationOptions& options,
+                                            const BracketProgress& progress, BracketCalibrationResult& result) {
+  std::vector<double> exposure = start;
+  const int rounds = frame_count > 2 ? options.exposure_rounds : 0;
+  std::vector<int> terms(channels.size(), 0);
+  for (int round = 0; round <= rounds; ++round) {
+    result.channels.clear();
+    for (std::size_t ci = 0; ci < channels.size(); ++ci) {
+      result.channels.push_back(fitChannel(samples, channels[ci], planes[ci], exposure, options, terms[ci]));
+      terms[ci] = result.channels.back().fit.terms;
+      if (progress)
+        progress("fit", double(round * channels.size() + ci + 1) / double((rounds + 1) * channels.size()),
+                 channelName(channels[ci]) + (round > 0 ? " (refined exposures)" : ""));
+    }
+    if (round < rounds)
+      refineExposures(samples, result.channels, planes, start, options.max_exposure_deviation, options.sampling,
+                      exposure);
+  }
+  return exposure;
+}
+
+// Each channel's GGCM equivalent, and a warning where the data cover less than half of [0, 1].
+void describeChannels(const BracketCalibrationOptions& options, BracketCalibrationResult& result) {
+  for (auto& channel : result.channels) {
+    const ggcm::FitResult g = ggcm::fitInverse(channel.fit.inverse, options.ggcm);
+    channel.ggcm = g.model;
+    channel.ggcm_valid = g.valid;
+    channel.ggcm_rmse = curveRmse(sampleInverse(g.model, kCurveSamples), channel.fit.inverse);
+    if (channel.fit.covered_range.second - channel.fit.covered_range.first < 0.5)
+      result.warnings.push_back("channel " + channelName(channel.channel) + ": data cover only x in [" +
+                                std::to_string(channel.fit.covered_range.first) + ", " +
+                                std::to_string(channel.fit.covered_range.second) +
+                                "]; the rest of the curve is the EMoR model's extrapolation");
+  }
+}
+
+}  // namespace
+
+BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frames,
+                                          const BracketCalibrationOptions& options, const BracketProgress& progress) {
+  options.check();
+  const bool known = checkFrames(frames);
+  BracketCalibrationResult result;
+  result.exposure_source = known ? "exif" : "images";
+  const int reference = listFrames(frames, known, result);
 
   // Working copies no larger than max_dimension (registration and sampling at that size).
   double scale = 1;
@@ -613,16 +681,7 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
   std::vector<cv::Mat> greys;
   for (const cv::Mat& image : aligned.images) greys.push_back(greyOf(image));
   requireSameScene(greys, aligned.valid, frames, reference, options, result.frames);
-  std::vector<double> start(frames.size());
-  if (known) {
-    for (std::size_t j = 0; j < frames.size(); ++j) start[j] = frames[j].exposure / frames[static_cast<size_t>(reference)].exposure;
-  } else {
-    start = exposuresFromImages(greys, reference);
-    result.warnings.push_back(
-        "no EXIF exposures: the start exposures come from the images through the EMoR mean curve, one free scale "
-        "per frame; the curve's overall exponent rests on that estimate (the bracket alone cannot fix it, Grossberg & "
-        "Nayar 2003)");
-  }
+  const std::vector<double> start = startExposures(frames, known, reference, greys, result);
 
   if (progress) progress("sample", 0, "");
   Samples samples = samplePoints(aligned, options.sampling);
@@ -636,39 +695,14 @@ BracketCalibrationResult calibrateBracket(const std::vector<BracketFrame>& frame
     if (!grey || c == 1) channels.push_back(c), planes.push_back(grey ? 0 : 2 - c);
   if (channels.empty()) channels.push_back(1), planes.push_back(0);
 
-  std::vector<double> exposure = start;
-  const int rounds = frames.size() > 2 ? options.exposure_rounds : 0;
-  std::vector<int> terms(channels.size(), 0);
-  for (int round = 0; round <= rounds; ++round) {
-    result.channels.clear();
-    for (std::size_t ci = 0; ci < channels.size(); ++ci) {
-      // K chosen by cross-validation in the first round, kept in the refits.
-      result.channels.push_back(fitChannel(samples, channels[ci], planes[ci], exposure, options, terms[ci]));
-      terms[ci] = result.channels.back().fit.terms;
-      if (progress)
-        progress("fit", double(round * channels.size() + ci + 1) / double((rounds + 1) * channels.size()),
-                 channelName(channels[ci]) + (round > 0 ? " (refined exposures)" : ""));
-    }
-    if (round < rounds)
-      refineExposures(samples, result.channels, planes, start, options.max_exposure_deviation, options.sampling,
-                      exposure);
-  }
+  const std::vector<double> exposure =
+      fitChannelsAndExposures(samples, channels, planes, start, frames.size(), options, progress, result);
   for (std::size_t j = 0; j < frames.size(); ++j) {
     result.frames[j].start_exposure = start[j];
     result.frames[j].fitted_exposure = exposure[j];
   }
   addBands(samples, planes, exposure, options, result.channels);
-  for (auto& channel : result.channels) {
-    const ggcm::FitResult g = ggcm::fitInverse(channel.fit.inverse, options.ggcm);
-    channel.ggcm = g.model;
-    channel.ggcm_valid = g.valid;
-    channel.ggcm_rmse = curveRmse(sampleInverse(g.model, kCurveSamples), channel.fit.inverse);
-    if (channel.fit.covered_range.second - channel.fit.covered_range.first < 0.5)
-      result.warnings.push_back("channel " + channelName(channel.channel) + ": data cover only x in [" +
-                                std::to_string(channel.fit.covered_range.first) + ", " +
-                                std::to_string(channel.fit.covered_range.second) +
-                                "]; the rest of the curve is the EMoR model's extrapolation");
-  }
+  describeChannels(options, result);
   return result;
 }
 
