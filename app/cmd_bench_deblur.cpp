@@ -57,6 +57,7 @@ struct DeblurBenchArgs {
   bool bregman = DeconvolutionOptions{}.bregman;
   double beta_start = DeconvolutionOptions{}.beta_start;
   double beta_max = DeconvolutionOptions{}.beta_max;
+  bool fast = false;  // DeconvolutionOptions::withFastSchedule (overrides --inner, --beta-start, --beta-max)
   double phi_error = 0.02;  // RMSE of the perturbed φ (φ^a, a > 1 and a < 1 on alternate cases)
   bool estimated_phi = false;  // also deblur with the φ crfcal estimates from each simulated pair
   // The pair's sharp shot as extra information (residual deconvolution, Yuan et al. 2007): a simulated sharp shot
@@ -116,6 +117,7 @@ DeconvolutionOptions optionsOf(const DeblurBenchArgs& args) {
   options.bregman = args.bregman;
   options.beta_start = args.beta_start;
   options.beta_max = args.beta_max;
+  if (args.fast) options = options.withFastSchedule();
   options.check();
   return options;
 }
@@ -426,10 +428,15 @@ const BenchRegistration registration(
           ->check(CLI::Range(0, 64));
       command.add_option("--tile-size", args->tile_size, "FFT tile size (0: whole images)")->check(CLI::Range(0, 16384));
       command.add_option("--beta-factor", args->beta_factor, "TV continuation factor of beta")->check(CLI::Range(1.01, 64.0));
-      command.add_option("--inner", args->inner_iterations, "TV u/w alternations per beta")->check(CLI::Range(1, 100));
+      auto* inner = command.add_option("--inner", args->inner_iterations, "TV u/w alternations per beta")
+                        ->check(CLI::Range(1, 100));
       command.add_flag("--bregman,!--no-bregman", args->bregman, "ADMM multipliers in the TV solver (default on)");
-      command.add_option("--beta-start", args->beta_start, "First beta")->check(CLI::PositiveNumber);
-      command.add_option("--beta-max", args->beta_max, "Last beta")->check(CLI::PositiveNumber);
+      auto* beta_start = command.add_option("--beta-start", args->beta_start, "First beta")->check(CLI::PositiveNumber);
+      auto* beta_max = command.add_option("--beta-max", args->beta_max, "Last beta")->check(CLI::PositiveNumber);
+      command.add_flag("--fast", args->fast, "The fast TV schedule of `crfcal deblur --fast` (8 u-steps at beta 128)")
+          ->excludes(inner)
+          ->excludes(beta_start)
+          ->excludes(beta_max);
       command.add_option("--phi-error", args->phi_error, "RMSE of the perturbed phi of the 'phi off' columns")
           ->check(CLI::Range(0.001, 0.2));
       command.add_flag("--estimated-phi", args->estimated_phi,

@@ -38,6 +38,7 @@ struct DeblurArgs {
   std::string method = "tv";
   double lambda = DeconvolutionOptions{}.lambda;
   int iterations = DeconvolutionOptions{}.inner_iterations;  // TV u-steps (fewer: faster, softer)
+  bool fast = false;  // the fast TV schedule (DeconvolutionOptions::withFastSchedule)
   double wiener_nsr = DeconvolutionOptions{}.wiener_nsr;
   double saturation = DeconvolutionOptions{}.saturation;
   std::string sharp;  // the pair's sharp shot: residual deconvolution (Yuan et al. 2007)
@@ -113,6 +114,7 @@ int runDeblur(const DeblurArgs& args) {
   options.inner_iterations = args.iterations;
   options.wiener_nsr = args.wiener_nsr;
   options.saturation = args.saturation;
+  if (args.fast) options = options.withFastSchedule();
   options.check();
   if (args.kernel.empty() && args.from.empty()) throw InvalidInput("give --kernel or --from REPORT.json");
   if (args.crf.empty() && args.from.empty()) throw InvalidInput("give --crf or --from REPORT.json");
@@ -175,9 +177,14 @@ const CommandRegistration registration(
           ->check(CLI::IsMember({"tv", "wiener"}));
       command.add_option("--lambda", args->lambda, "TV data weight (larger: sharper, noisier)")
           ->check(CLI::PositiveNumber);
-      command.add_option("--iterations", args->iterations,
-                         "TV u-steps (default 25; 8 take about 45 % of the time for 0.9 dB less on the Levin set)")
-          ->check(CLI::Range(1, 500));
+      auto* iterations = command.add_option("--iterations", args->iterations,
+                                            "TV u-steps (default 25; 8 take about a third of the time for 0.9 dB less "
+                                            "on the Levin set)")
+                             ->check(CLI::Range(1, 500));
+      command.add_flag("--fast", args->fast,
+                       "Fast TV schedule: 8 u-steps at beta 128 (about a third of the time; 0.8 dB less on the Levin "
+                       "set, the irradiance domain still +3.2 dB ahead of the intensity domain)")
+          ->excludes(iterations);
       command.add_option("--wiener-nsr", args->wiener_nsr, "Wiener noise-to-signal ratio")->check(CLI::PositiveNumber);
       command.add_option("--saturation", args->saturation,
                          "Pixels at or above this level (0..1) are saturated and left out of the TV data term")

@@ -69,11 +69,17 @@ struct DeconvolutionOptions {
   bool single_precision = true;  // CV_32F DFTs (about 2x faster, half the memory); false: CV_64F, the reference
   // Large images are deconvolved in tiles of about this FFT size (0: the whole image at once); each tile fits its
   // core plus `tile_overlap` px on every side (0: twice the kernel's extent) and keeps the core. Images that fit in
-  // 1.25 tiles are done whole. 960 (was 640): at 12 MP with a 25 px kernel the FFT area falls from 1.82× to 1.38×
-  // the image (fewer overlaps) at ~15 % more time per FFT pixel, and the fewer seams gain +0.3 dB.
-  int tile_size = 960;
+  // 1.25 tiles are done whole. 1536 (640, then 960 with OpenCV's DFT): with FFTW's transforms at 12 MP and a 25 px
+  // kernel, 8 TV steps take 8.8 s wall against 10.1 s at 960 (FFT area 1.25× the image instead of 1.38×; medians of
+  // 3, docs/RESULTS.md "Speed at 12 MP"), and the fewer seams gain +0.1 dB.
+  int tile_size = 1536;
   int tile_overlap = 0;
   void check() const;          // throws InvalidInput naming the bad option
+
+  // These options with the fast TV schedule (`crfcal deblur --fast`): 8 u-steps at β = 128 instead of 25 at β = 256,
+  // 0.36× the time. Levin bench: −0.8 dB, the irradiance domain's gain over the intensity domain +3.25 dB instead of
+  // +3.79 (docs/RESULTS.md, "Speed: fewer TV steps").
+  DeconvolutionOptions withFastSchedule() const;
 };
 
 struct DeconvolutionResult {
