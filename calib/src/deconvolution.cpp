@@ -5,6 +5,8 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <mutex>
+#include <string>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -727,12 +729,19 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   std::vector<int> steps(jobs, 0);
   DeconvolutionResult result;
   result.deblurred.create(blurred.size(), CV_MAKETYPE(CV_64F, channels));
+  std::mutex progress_mutex;
+  int jobs_done = 0;
   cv::parallel_for_(cv::Range(0, jobs), [&](const cv::Range& range) {
     for (int job = range.start; job < range.end; ++job) {
       const int c = job / static_cast<int>(tiles.size());
       const Tile& tile = tiles[job % tiles.size()];
       writeIntensity(solveTile(observed[c], masks[c], k, tile, canvases, options, &steps[job]), tile.core, c,
                      curveOf(c), irradiance, result.deblurred);
+      if (options.progress) {
+        const std::lock_guard<std::mutex> lock(progress_mutex);
+        ++jobs_done;
+        options.progress(double(jobs_done) / jobs, std::to_string(jobs_done) + "/" + std::to_string(jobs));
+      }
     }
   });
   for (cv::Mat& plane : observed) plane.release();

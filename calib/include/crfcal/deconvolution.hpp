@@ -29,6 +29,7 @@
 // canvas and overlapping its neighbours; the (channel, tile) jobs run in parallel (cv::parallel_for_).
 //
 // Kernels follow crfcal::convolve exactly (kernel.hpp: convolution, centre (cols/2, rows/2)).
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -74,6 +75,9 @@ struct DeconvolutionOptions {
   // 3, docs/RESULTS.md "Speed at 12 MP"), and the fewer seams gain +0.1 dB.
   int tile_size = 1536;
   int tile_overlap = 0;
+  // Called after each (channel, tile) job of deconvolve() with the fraction of jobs done and "done/total", one call
+  // at a time (under a lock, from the job's thread); empty: none.
+  std::function<void(double fraction, const std::string& detail)> progress;
   void check() const;          // throws InvalidInput naming the bad option
 
   // These options with the fast TV schedule (`crfcal deblur --fast`): 8 u-steps at β = 128 instead of 25 at β = 256,
