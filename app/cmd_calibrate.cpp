@@ -298,8 +298,9 @@ void printCalibration(const CalibrateArgs& args, double nominal_ratio, const Pai
     std::printf("pair phi vs RAW truth:\n%s", truth_report->comparison->summary().c_str());
   }
   for (const auto& w : report.warnings) std::printf("warning: %s\n", w.c_str());
-  std::printf("wrote %s/{report.json, inverse_crf.csv, kernel.png, kernel.txt, curve.png, gamma_map.png, weights.png}\n",
-              args.output.c_str());
+  std::printf("wrote %s/{report.json, inverse_crf.csv, kernel.png, kernel.txt, curve.png, gamma_map.png, weights.png}%s\n",
+              args.output.c_str(),
+              result.tile_kernels.size() > 1 ? " and the tiles' kernels kernel_tile_N.txt (deblur --from --kernels)" : "");
 }
 
 // The verdict per channel, last (channel_verdict.hpp): one line each, R, G, B order.
@@ -377,6 +378,7 @@ int runCalibrate(const CalibrateArgs& args) {
   report.timings.insert(timings.begin(), timings.end());
   writeInverseCrfCsv(out, report);
   io::writeKernelText(out.file("kernel.txt"), result.kernel.kernel);
+  io::writeTileKernels(out.file(""), result);
   std::map<std::string, std::vector<double>> truth_curves;
   if (truth) truth_curves = truth->result.inverse();
   io::writeCalibrationFigures(out.file(""), {result, pair, truth ? &truth_curves : nullptr});

@@ -55,6 +55,7 @@ struct DeblurArgs {
   std::string kernel;
   std::string crf;
   std::string from;
+  std::string kernels = "auto";  // with --from: the report's per-tile kernels (auto: when they vary), or one
   std::string domain = "irradiance";
   std::string method = "tv";
   double lambda = DeconvolutionOptions{}.lambda;
@@ -69,6 +70,17 @@ struct DeblurArgs {
   std::string output;
   bool force = false;  // write into an output directory holding other files (never deletes them)
 };
+
+// --from without --kernel: the report's per-tile kernels when --kernels asks for them (auto: when the calibration
+// found the blur varying across the frame); empty: the report's one kernel.
+ReportTileKernels chosenTileKernels(const DeblurArgs& args) {
+  if (args.from.empty() || !args.kernel.empty() || args.kernels == "one") return {};
+  ReportTileKernels tiles = tileKernelsOfReport(args.from);
+  if (args.kernels == "tiles" && tiles.kernels.size() < 2)
+    throw Error("the report lists no per-tile kernels (--kernels tiles; images up to 1200 px are one tile)", args.from);
+  if (args.kernels == "auto" && !tiles.varies) return {};
+  return tiles;
+}
 
 // --sharp: residual deconvolution with the pair's sharp shot (irradiance) is deblurred.png; the blind results of
 // both domains are kept beside it.
@@ -151,6 +163,8 @@ int runDeblur(const DeblurArgs& args) {
     inputs.push_back(args.from);
     inputs.push_back(std::filesystem::path(args.from).parent_path() / "kernel.txt");
   }
+  const ReportTileKernels tile_kernels = chosenTileKernels(args);
+  inputs.insert(inputs.end(), tile_kernels.files.begin(), tile_kernels.files.end());
   io::OutputDirectory out(args.output, {"deblur", inputs, args.force});
 
   const cv::Mat blurred = toUnit(io::readImage(args.blurred));
@@ -163,7 +177,9 @@ int runDeblur(const DeblurArgs& args) {
     progress.stage(std::string("deblur, ") + toString(domain_options.domain) + " domain");
     DeconvolutionOptions shown = domain_options;
     shown.progress = [&progress](double fraction, const std::string& detail) { progress.update(fraction, detail); };
-    DeconvolutionResult result = deconvolve(blurred, kernel, curves, shown);
+    DeconvolutionResult result = tile_kernels.kernels.size() > 1
+                                     ? deconvolve(blurred, tile_kernels.kernels, curves, shown)
+                                     : deconvolve(blurred, kernel, curves, shown);
     result.options.progress = nullptr;  // the options go on to the residual deconvolution (--sharp), not the line
     progress.done();
     return result;
@@ -205,6 +221,11 @@ const CommandRegistration registration(
       command.add_option("--from", args->from,
                          "A calibration report.json: its phi and its kernel (kernel.txt beside it); --kernel and "
                          "--crf override");
+      command.add_option("--kernels", args->kernels,
+                         "With --from: auto (the report's per-tile kernels when the calibration found the blur varying "
+                         "across the frame, each part of the image with the nearest), tiles (always when listed), one "
+                         "(kernel.txt only)")
+          ->check(CLI::IsMember({"auto", "tiles", "one"}));
       command.add_option("--domain", args->domain,
                          "Domain of deblurred.png: irradiance (phi(B), deconvolve, psi) or intensity (B directly); "
                          "deblurred_other_domain.png holds the other")

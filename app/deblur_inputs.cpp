@@ -64,6 +64,26 @@ cv::Mat toUnit(const cv::Mat& image) {
   return unit;
 }
 
+ReportTileKernels tileKernelsOfReport(const fs::path& report_path) {
+  const io::CalibrationReport report = io::readReport(report_path);
+  ReportTileKernels tiles;
+  const auto entry = report.extra.find("kernel");
+  if (entry == report.extra.end() || !entry->is_object() || !entry->contains("tile_kernels")) return tiles;
+  try {
+    for (const auto& tile : entry->at("tile_kernels")) {
+      const auto centre = tile.at("centre_in_blurred").get<std::vector<double>>();
+      if (centre.size() != 2) throw Error("kernel.tile_kernels: centre_in_blurred needs 2 values", report_path.string());
+      tiles.files.push_back(report_path.parent_path() / tile.at("text").get<std::string>());
+      tiles.kernels.push_back({{centre[0], centre[1]}, io::readKernel(tiles.files.back())});
+    }
+    if (entry->contains("tile_disagreement"))
+      tiles.varies = entry->at("tile_disagreement").value("varies", false);
+  } catch (const nlohmann::json::exception& e) {
+    throw Error(std::string("kernel.tile_kernels: ") + e.what(), report_path.string());
+  }
+  return tiles;
+}
+
 // The sharp shot → blurred shot homography of a calibration report ("registration": {"homography": 9 values}); empty
 // when the report has none.
 cv::Mat homographyOfReport(const fs::path& report_path) {

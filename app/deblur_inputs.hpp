@@ -8,6 +8,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "crfcal/deconvolution.hpp"
 #include "crfcal/registration.hpp"
 #include "crfcal/response_curve.hpp"
 
@@ -19,6 +20,16 @@ std::vector<ResponseCurve> curvesFor(const std::string& spec, int channels);
 
 // The kernel a calibration report points to: "kernel": {"text": "kernel.txt"} beside report.json.
 cv::Mat kernelOfReport(const std::filesystem::path& report_path);
+
+// The per-tile kernels a calibration report lists ("kernel" → "tile_kernels": kernel_tile_N.txt beside report.json,
+// each at its tile's centre in the blurred shot) and whether the calibration found the blur varying across the frame
+// ("tile_disagreement" → "varies"). Empty when the report lists none (images up to 1200 px are one tile).
+struct ReportTileKernels {
+  std::vector<LocalKernel> kernels;
+  std::vector<std::filesystem::path> files;  // the kernels' text files (inputs: never overwritten)
+  bool varies = false;
+};
+ReportTileKernels tileKernelsOfReport(const std::filesystem::path& report_path);
 
 // An image as CV_64F in [0,1] (BGRA → BGR); throws InvalidInput unless grey or colour.
 cv::Mat toUnit(const cv::Mat& image);

@@ -4,9 +4,11 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <string>
+#include <tuple>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -475,18 +477,55 @@ cv::Mat totalVariationSolve(const cv::Mat& f, const cv::Mat& mask, const CanvasO
 // memory; the overlap keeps the tiles' free-boundary errors out of the kept cores.
 
 struct Tile {
-  cv::Rect core;  // pixels this tile writes
-  cv::Rect data;  // pixels it fits (⊇ core)
+  cv::Rect core;   // pixels this tile writes
+  cv::Rect data;   // pixels it fits (⊇ core)
+  int kernel = 0;  // index of its kernel (several local kernels: the one whose centre is nearest the core's)
 };
 
-std::vector<Tile> planTiles(cv::Size image, const cv::Mat& kernel, const DeconvolutionOptions& options) {
-  const int margin = std::max(kernel.rows, kernel.cols);
+// The kernels of one deconvolution: one for the whole image, or local kernels each holding around its centre.
+struct KernelSet {
+  std::vector<cv::Mat> kernels;     // normalised
+  std::vector<cv::Point2d> centres;  // one per kernel (unused for a single kernel)
+
+  int margin() const {  // the largest extent: every tile's overlap and the tiling use it
+    int extent = 0;
+    for (const cv::Mat& k : kernels) extent = std::max({extent, k.rows, k.cols});
+    return extent;
+  }
+  int nearest(cv::Point2d point) const {
+    int best = 0;
+    for (std::size_t i = 1; i < centres.size(); ++i)
+      if (cv::norm(centres[i] - point) < cv::norm(centres[static_cast<std::size_t>(best)] - point)) best = static_cast<int>(i);
+    return best;
+  }
+  // With local kernels, tiles no larger than their spacing (cores about the distance between the two closest
+  // centres, at least 64 px), so that each part of the image is deconvolved with the kernel estimated nearest it.
+  int tileSize(const DeconvolutionOptions& options) const {
+    if (kernels.size() < 2 || options.tile_size == 0) return options.tile_size;
+    double spacing = std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i < centres.size(); ++i)
+      for (std::size_t j = i + 1; j < centres.size(); ++j) spacing = std::min(spacing, cv::norm(centres[i] - centres[j]));
+    const int overlap = options.tile_overlap > 0 ? options.tile_overlap : 2 * margin();
+    const int core = static_cast<int>(std::max(64.0, std::min(spacing, 1e6)));
+    return std::min(options.tile_size, core + 2 * (margin() + overlap));
+  }
+};
+
+std::vector<Tile> planTiles(cv::Size image, const KernelSet& kernels, const DeconvolutionOptions& options) {
+  const int margin = kernels.margin();
   const int overlap = options.tile_overlap > 0 ? options.tile_overlap : 2 * margin;
+  const int tile_size = kernels.tileSize(options);
   // the core a tile of `tile_size` leaves after the free-boundary padding and the overlap on both sides
-  const int core = options.tile_size - 2 * (margin + overlap);
+  const int core = tile_size - 2 * (margin + overlap);
   const cv::Size whole(image.width + 2 * margin, image.height + 2 * margin);
-  if (options.tile_size == 0 || core < 32 || (whole.width <= options.tile_size * 5 / 4 && whole.height <= options.tile_size * 5 / 4))
-    return {Tile{cv::Rect({0, 0}, image), cv::Rect({0, 0}, image)}};
+  const auto withKernels = [&](std::vector<Tile> tiles) {
+    for (Tile& tile : tiles)
+      tile.kernel = kernels.nearest({tile.core.x + 0.5 * (tile.core.width - 1), tile.core.y + 0.5 * (tile.core.height - 1)});
+    return tiles;
+  };
+  const bool fits_one_tile = whole.width <= tile_size * 5 / 4 && whole.height <= tile_size * 5 / 4;
+  if (tile_size == 0 || core < 32 || (fits_one_tile && kernels.kernels.size() < 2))  // local kernels: always tiles
+    return withKernels({Tile{cv::Rect({0, 0}, image), cv::Rect({0, 0}, image)}});
   const int nx = (image.width + core - 1) / core, ny = (image.height + core - 1) / core;
   const cv::Rect bounds({0, 0}, image);
   std::vector<Tile> tiles;
@@ -498,24 +537,27 @@ std::vector<Tile> planTiles(cv::Size image, const cv::Mat& kernel, const Deconvo
       const cv::Rect fitted = cv::Rect(x0 - overlap, y0 - overlap, kept.width + 2 * overlap, kept.height + 2 * overlap) & bounds;
       tiles.push_back({kept, fitted});
     }
-  return tiles;
+  return withKernels(std::move(tiles));
 }
 
-// The operators of every canvas size the tiles use, keyed by (width, height), formed in parallel.
-using Canvases = std::map<std::pair<int, int>, CanvasOperators>;
+// The operators of every (canvas size, kernel) the tiles use, keyed by (width, height, kernel), formed in parallel.
+using CanvasKey = std::tuple<int, int, int>;
+using Canvases = std::map<CanvasKey, CanvasOperators>;
 
-Canvases prepareCanvases(const std::vector<Tile>& tiles, const cv::Mat& kernel, const DeconvolutionOptions& options) {
+CanvasKey canvasKey(const Tile& tile, const KernelSet& kernels) {
+  const cv::Size size = choosePadding(tile.data.size(), kernels.kernels[static_cast<std::size_t>(tile.kernel)]).padded;
+  return {size.width, size.height, tile.kernel};
+}
+
+Canvases prepareCanvases(const std::vector<Tile>& tiles, const KernelSet& kernels, const DeconvolutionOptions& options) {
   Canvases canvases;
-  for (const Tile& tile : tiles) {
-    const cv::Size size = choosePadding(tile.data.size(), kernel).padded;
-    canvases[{size.width, size.height}];
-  }
+  for (const Tile& tile : tiles) canvases[canvasKey(tile, kernels)];
   std::vector<Canvases::value_type*> entries;
   for (auto& entry : canvases) entries.push_back(&entry);
   cv::parallel_for_(cv::Range(0, static_cast<int>(entries.size())), [&](const cv::Range& range) {
     for (int i = range.start; i < range.end; ++i) {
-      const cv::Size size(entries[i]->first.first, entries[i]->first.second);
-      entries[i]->second = canvasOperators(kernel, size, options);
+      const auto& [width, height, kernel] = entries[i]->first;
+      entries[i]->second = canvasOperators(kernels.kernels[static_cast<std::size_t>(kernel)], {width, height}, options);
     }
   });
   return canvases;
@@ -523,14 +565,14 @@ Canvases prepareCanvases(const std::vector<Tile>& tiles, const cv::Mat& kernel, 
 
 // Deconvolves observed(tile.data) (CV_32F or CV_64F) and returns the solution on tile.core (a view, not clamped;
 // TV: of the thread's workspace, valid until the thread's next solve).
-cv::Mat solveTile(const cv::Mat& observed, const cv::Mat& data_mask, const cv::Mat& kernel, const Tile& tile,
+cv::Mat solveTile(const cv::Mat& observed, const cv::Mat& data_mask, const KernelSet& kernels, const Tile& tile,
                   const Canvases& canvases, const DeconvolutionOptions& options, int* iterations) {
   const int depth = options.single_precision ? CV_32F : CV_64F;
   cv::Mat f;
   observed(tile.data).convertTo(f, depth);
-  const Padding padding = choosePadding(f.size(), kernel);
+  const Padding padding = choosePadding(f.size(), kernels.kernels[static_cast<std::size_t>(tile.kernel)]);
   const cv::Mat padded = reflectPad(f, padding);
-  const CanvasOperators& canvas = canvases.at({padding.padded.width, padding.padded.height});
+  const CanvasOperators& canvas = canvases.at(canvasKey(tile, kernels));
   cv::Mat u;
   if (options.method == DeconvolutionMethod::Wiener) {
     u = wienerSolve(padded, canvas.kernel_spectrum, options.wiener_nsr);
@@ -673,6 +715,7 @@ std::string DeconvolutionResult::summary() const {
                 toString(options.method), toString(options.domain), deblurred.cols, deblurred.rows,
                 deblurred.channels(), tiles, padded_size.width, padded_size.height, iterations, saturated_pixels,
                 seconds);
+  if (kernels > 1) return std::string(text) + ", " + std::to_string(kernels) + " local kernels (each tile the nearest)";
   return text;
 }
 
@@ -682,7 +725,7 @@ cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const 
   if (observed.empty() || observed.channels() != 1) throw InvalidInput("deconvolveChannel needs one channel");
   if (!data_mask.empty() && data_mask.size() != observed.size())
     throw InvalidInput("deconvolution mask and image differ in size");
-  const cv::Mat k = normalizeKernel(kernel);
+  const KernelSet k{{normalizeKernel(kernel)}, {{0, 0}}};
   const std::vector<Tile> tiles = planTiles(observed.size(), k, options);
   const Canvases canvases = prepareCanvases(tiles, k, options);
   cv::Mat result(observed.size(), CV_64F);
@@ -697,8 +740,10 @@ cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const 
   return result;
 }
 
-DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, const std::vector<ResponseCurve>& curves,
-                               const DeconvolutionOptions& options) {
+namespace {
+
+DeconvolutionResult deconvolveWith(const cv::Mat& blurred, const KernelSet& k, const std::vector<ResponseCurve>& curves,
+                                   const DeconvolutionOptions& options) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   options.check();
@@ -709,7 +754,6 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   const int image_depth = blurred.depth();
   if (image_depth != CV_8U && image_depth != CV_16U && image_depth != CV_32F && image_depth != CV_64F)
     throw InvalidInput("images to deblur must be 8-bit, 16-bit or floating point");
-  const cv::Mat k = normalizeKernel(kernel);
   const bool irradiance = options.domain == DeconvolutionDomain::Irradiance;
   const bool masking = options.mask_saturated && options.method == DeconvolutionMethod::TotalVariation;
   const int depth = options.single_precision ? CV_32F : CV_64F;
@@ -751,12 +795,36 @@ DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, co
   result.iterations = steps[0];
   result.saturated_pixels = saturated;
   result.tiles = static_cast<int>(tiles.size());
-  result.padded_size = choosePadding(tiles[0].data.size(), k).padded;
+  result.padded_size = choosePadding(tiles[0].data.size(), k.kernels[static_cast<std::size_t>(tiles[0].kernel)]).padded;
+  std::vector<int> used;
+  for (const Tile& tile : tiles) used.push_back(tile.kernel);
+  std::sort(used.begin(), used.end());
+  result.kernels = static_cast<int>(std::unique(used.begin(), used.end()) - used.begin());
   const auto seconds = [](Clock::time_point from, Clock::time_point to) { return std::chrono::duration<double>(to - from).count(); };
   result.prepare_seconds = seconds(start, prepared);
   result.solve_seconds = seconds(prepared, solved);
   result.seconds = seconds(start, Clock::now());
   return result;
+}
+
+}  // namespace
+
+DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, const std::vector<ResponseCurve>& curves,
+                               const DeconvolutionOptions& options) {
+  return deconvolveWith(blurred, KernelSet{{normalizeKernel(kernel)}, {{0, 0}}}, curves, options);
+}
+
+DeconvolutionResult deconvolve(const cv::Mat& blurred, const std::vector<LocalKernel>& kernels,
+                               const std::vector<ResponseCurve>& curves, const DeconvolutionOptions& options) {
+  if (kernels.empty()) throw InvalidInput("deblurring with local kernels needs at least one");
+  KernelSet set;
+  for (const LocalKernel& local : kernels) {
+    if (!std::isfinite(local.centre.x) || !std::isfinite(local.centre.y))
+      throw InvalidInput("a local kernel's centre is not finite");
+    set.kernels.push_back(normalizeKernel(local.kernel));
+    set.centres.push_back(local.centre);
+  }
+  return deconvolveWith(blurred, set, curves, options);
 }
 
 double psnr(const cv::Mat& estimate, const cv::Mat& reference, int border) {

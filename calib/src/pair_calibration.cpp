@@ -1,6 +1,9 @@
 #include "crfcal/pair_calibration.hpp"
 
 #include <cstdio>
+#include <vector>
+
+#include <opencv2/core.hpp>
 
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
@@ -30,6 +33,14 @@ void PairCalibrationOptions::check() const {
   chroma_choice.check();
   for (const ChromaSubsampling& c : {sharp_chroma, sharp_stored_chroma})
     if (c.h < 1 || c.v < 1 || c.h > 4 || c.v > 4) throw InvalidInput("chroma sampling factors must be 1..4");
+}
+
+cv::Point2d PairCalibrationResult::tileCentreInBlurred(const TileKernel& t) const {
+  const cv::Rect& rect = tiles.at(static_cast<std::size_t>(t.tile)).rect;
+  const std::vector<cv::Point2d> centre{{rect.x + 0.5 * (rect.width - 1), rect.y + 0.5 * (rect.height - 1)}};
+  std::vector<cv::Point2d> in_blurred;
+  cv::perspectiveTransform(centre, in_blurred, registration.homography);
+  return in_blurred.front();
 }
 
 std::string PairCalibrationResult::summary() const {

@@ -58,14 +58,16 @@ KernelEstimate estimateCanvasKernel(PairCalibrationState& state, const cv::Mat& 
     KernelEstimationOptions to = ko;
     to.progress = nullptr;
     to.throw_on_size_limit = false;
-    for (const auto& r : canvas.regions) {
+    std::vector<cv::Mat> kernels;
+    for (std::size_t i = 0; i < canvas.regions.size(); ++i) {  // canvas.regions[i] is result.tiles[i] (pair_canvas.cpp)
       try {
-        result.tile_kernels.push_back(estimateKernel(s, b, {r}, canvas.usable, to, weights).kernel);
+        kernels.push_back(estimateKernel(s, b, {canvas.regions[i]}, canvas.usable, to, weights).kernel);
+        result.tile_kernels.push_back({static_cast<int>(i), kernels.back()});
       } catch (const InvalidInput&) {
         // a tile without usable edges: no per-tile kernel
       }
     }
-    result.disagreement = kernelDisagreement(result.tile_kernels, k.kernel);
+    result.disagreement = kernelDisagreement(kernels, k.kernel);
   }
   return k;
 }

@@ -61,7 +61,7 @@ void blurWarnings(PairCalibrationState& state) {
                   result.blur_radius, result.fits.at("G").ratio);
     result.warnings.push_back(buffer);
   }
-  if (result.kernel_estimated && result.tile_kernels.size() > 1 && result.disagreement.mean_relative > 0.6)
+  if (result.kernel_estimated && result.tile_kernels.size() > 1 && result.disagreement.varies())
     result.warnings.push_back("the tiles' kernels disagree (" + result.disagreement.summary() +
                               "): the blur varies across the frame; one global kernel is an approximation");
 }

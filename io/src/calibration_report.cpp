@@ -4,6 +4,7 @@
 #include <vector>
 
 #include "crfcal/io/band_report.hpp"
+#include "crfcal/io/kernel_io.hpp"
 
 namespace crfcal::io {
 namespace {
@@ -119,10 +120,23 @@ json kernelJson(const PairCalibrationResult& result) {
   kernel["border_mass"] = result.kernel.border_mass;
   kernel["relative_residual"] = result.kernel.relative_residual;
   kernel["tiles"] = result.tiles.size();
-  if (result.tile_kernels.size() > 1)
+  if (result.tile_kernels.size() > 1) {
     kernel["tile_disagreement"] = {{"mean_relative", result.disagreement.mean_relative},
                                    {"max_relative", result.disagreement.max_relative},
-                                   {"centroid_spread_px", result.disagreement.centroid_spread}};
+                                   {"centroid_spread_px", result.disagreement.centroid_spread},
+                                   {"varies", result.disagreement.varies()}};
+    json tile_kernels = json::array();
+    for (const TileKernel& t : result.tile_kernels) {
+      const cv::Rect& rect = result.tiles.at(static_cast<std::size_t>(t.tile)).rect;
+      const cv::Point2d centre = result.tileCentreInBlurred(t);
+      tile_kernels.push_back({{"tile", t.tile},
+                              {"region_in_sharp", {rect.x, rect.y, rect.width, rect.height}},
+                              {"centre_in_blurred", {centre.x, centre.y}},
+                              {"size", {t.kernel.cols, t.kernel.rows}},
+                              {"text", tileKernelFileName(t.tile)}});
+    }
+    kernel["tile_kernels"] = tile_kernels;
+  }
   return kernel;
 }
 
@@ -218,6 +232,11 @@ void addVerdict(const PairCalibrationResult& result, json& extra) {
 }
 
 }  // namespace
+
+void writeTileKernels(const std::filesystem::path& directory, const PairCalibrationResult& result) {
+  if (result.tile_kernels.size() < 2) return;  // as kernelJson lists them
+  for (const TileKernel& t : result.tile_kernels) writeKernelText(directory / tileKernelFileName(t.tile), t.kernel);
+}
 
 json curveComparisonJson(const CurveComparison& comparison) {
   json out = json::object();

@@ -112,6 +112,8 @@ cv::Mat kernelFromSpec(const std::string& spec) {
   return readKernel(spec);
 }
 
+std::string tileKernelFileName(int tile) { return "kernel_tile_" + std::to_string(tile) + ".txt"; }
+
 void writeKernelText(const fs::path& path, const cv::Mat& kernel) {
   std::ostringstream out;
   out.precision(10);

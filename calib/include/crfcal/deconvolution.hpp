@@ -93,6 +93,7 @@ struct DeconvolutionResult {
   int tiles = 1;                        // tiles per channel
   long long saturated_pixels = 0;       // masked pixel-channels (TV with mask_saturated)
   cv::Size padded_size;                 // FFT size of the first tile
+  int kernels = 1;                      // distinct kernels the tiles used (local kernels: each tile the nearest)
   double seconds = 0;                   // wall time
   double prepare_seconds = 0;           // of which: φ(B) and the data masks
   double solve_seconds = 0;             // the (channel, tile) solves with ψ of their cores; the rest: releases
@@ -112,6 +113,20 @@ cv::Mat deconvolveChannel(const cv::Mat& observed, const cv::Mat& kernel, const 
 // one parallel job.
 DeconvolutionResult deconvolve(const cv::Mat& blurred, const cv::Mat& kernel, const std::vector<ResponseCurve>& curves,
                                const DeconvolutionOptions& options = {});
+
+// A kernel that holds around `centre` (pixels of the blurred image): a blur that varies across the frame, estimated
+// per tile (PairCalibrationResult::tile_kernels).
+struct LocalKernel {
+  cv::Point2d centre;
+  cv::Mat kernel;
+};
+
+// As above with local kernels: each tile is deconvolved with the kernel whose centre is nearest the tile's own
+// centre, the tiles no larger than the centres' spacing (cores of about the distance between the two closest
+// centres, at least 64 px; options.tile_size stays the upper limit, 0 = the whole image with the kernel nearest its
+// centre); the tiles' overlap and padding follow the largest kernel. One local kernel is deconvolve() with that kernel.
+DeconvolutionResult deconvolve(const cv::Mat& blurred, const std::vector<LocalKernel>& kernels,
+                               const std::vector<ResponseCurve>& curves, const DeconvolutionOptions& options = {});
 
 // PSNR in dB of `estimate` against `reference` (both [0,1]), ignoring `border` pixels on every side.
 double psnr(const cv::Mat& estimate, const cv::Mat& reference, int border = 0);

@@ -112,13 +112,20 @@ struct PairFitInputs {
   bool empty() const { return sharp.empty(); }
 };
 
+// A kernel estimated on one of PairCalibrationResult::tiles alone: the blur there (spatial variation; `deblur --from`
+// deblurs each part of the image with the nearest one).
+struct TileKernel {
+  int tile = 0;    // index into PairCalibrationResult::tiles (a tile without usable edges has no kernel)
+  cv::Mat kernel;  // CV_64F, sums to 1
+};
+
 struct PairCalibrationResult {
   RegistrationResult registration;
   double sharp_rotation_deg = 0;         // ±90: the sharp shot was framed in the other orientation and turned
   KernelEstimate kernel;                 // final kernel (given kernels: kernel set, other fields default)
   bool kernel_estimated = true;
   std::vector<Tile> tiles;
-  std::vector<cv::Mat> tile_kernels;     // one per tile when more than one tile
+  std::vector<TileKernel> tile_kernels;  // the last kernel round's, per tile with usable edges, when more than one tile
   KernelDisagreement disagreement;
   std::vector<std::string> channels;     // "R","G","B" or "G"
   // Channels fitted only where the sharp shot's subsampled chroma is flat (options.sharp_chroma; issue 20)
@@ -151,6 +158,9 @@ struct PairCalibrationResult {
   std::map<std::string, ChannelVerdict> verdicts;
   PairFitInputs fit_inputs;  // empty unless options.keep_fit_inputs
   std::string summary() const;
+  // The centre of tile kernel `t`'s tile in the blurred shot's pixels (the tiles are in the sharp shot's frame; the
+  // registration's homography maps it).
+  cv::Point2d tileCentreInBlurred(const TileKernel& t) const;
 };
 
 // sharp / blurred: the two shots (grey or BGR, CV_8U or CV_16U, same depth and channels; the same size, or

@@ -33,6 +33,10 @@ struct KernelDisagreement {
   double max_relative = 0;
   double centroid_spread = 0; // largest distance between two tiles' kernel centroids, pixels
   std::string summary() const;
+  // Above this mean relative difference the blur is taken to vary across the frame: `calibrate` warns, and
+  // `deblur --from` deblurs with the tiles' kernels (--kernels auto).
+  static constexpr double kVarying = 0.6;
+  bool varies() const { return tiles > 1 && mean_relative > kVarying; }
 };
 KernelDisagreement kernelDisagreement(const std::vector<cv::Mat>& tile_kernels, const cv::Mat& combined);
 

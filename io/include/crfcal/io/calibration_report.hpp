@@ -46,6 +46,10 @@ CalibrationReport curveFitsReport(const std::map<std::string, CrfFitResult>& fit
 // The report of one calibration (timings: the result's stages; the command adds its own before writing).
 CalibrationReport calibrationReport(const PairCalibrationResult& result, const CalibrationReportContext& context);
 
+// The per-tile kernels of a calibration (PairCalibrationResult::tile_kernels, when more than one) as text matrices in
+// `directory`, named as the report's "kernel" → "tile_kernels" entries name them (kernel_tile_<tile>.txt).
+void writeTileKernels(const std::filesystem::path& directory, const PairCalibrationResult& result);
+
 // The comparison of two sets of curves (CurveComparison) as JSON: per channel RMSE / max error / covered range.
 nlohmann::json curveComparisonJson(const CurveComparison& comparison);
 

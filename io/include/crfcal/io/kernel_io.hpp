@@ -22,4 +22,8 @@ std::filesystem::path samplesDirectory();
 void writeKernelText(const std::filesystem::path& path, const cv::Mat& kernel);
 void writeKernelPng(const std::filesystem::path& path, const cv::Mat& kernel, int min_size = 64);
 
+// "kernel_tile_<tile>.txt": the file of the kernel a calibration estimated on its tile `tile` alone (beside
+// report.json, listed under "kernel" → "tile_kernels").
+std::string tileKernelFileName(int tile);
+
 }  // namespace crfcal::io
