@@ -1,5 +1,6 @@
 #include "deblur_inputs.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <optional>
 
@@ -111,7 +112,11 @@ cv::Mat readSharpShot(const std::string& path, const cv::Mat& blurred, const std
 
 // Panels side by side, 8-bit, a caption above each.
 cv::Mat sideBySide(const std::vector<std::pair<cv::Mat, std::string>>& items) {
-  const int caption = 28;
+  // captions grow with the panels, so that they stay readable when a photo's panels are shown scaled down
+  const int width = items.empty() ? 0 : items.front().first.cols;
+  const double font_scale = std::max(0.6, width / 1000.0);
+  const int caption = static_cast<int>(std::lround(28 * font_scale / 0.6));
+  const int thickness = std::max(1, static_cast<int>(std::lround(font_scale)));
   std::vector<cv::Mat> panels;
   for (const auto& [image_value, label] : items) {
     const cv::Mat* image = &image_value;
@@ -122,7 +127,8 @@ cv::Mat sideBySide(const std::vector<std::pair<cv::Mat, std::string>>& items) {
     else bgr = eight;
     cv::Mat panel(bgr.rows + caption, bgr.cols, CV_8UC3, cv::Scalar(255, 255, 255));
     bgr.copyTo(panel(cv::Rect(0, caption, bgr.cols, bgr.rows)));
-    cv::putText(panel, label.c_str(), {6, caption - 8}, cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    cv::putText(panel, label.c_str(), {static_cast<int>(6 * font_scale / 0.6), caption - caption * 8 / 28},
+                cv::FONT_HERSHEY_SIMPLEX, font_scale, cv::Scalar(0, 0, 0), thickness, cv::LINE_AA);
     panels.push_back(panel);
     panels.push_back(cv::Mat(panel.rows, 4, CV_8UC3, cv::Scalar(255, 255, 255)));
   }

@@ -5,6 +5,7 @@
 #include <fstream>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -474,6 +475,51 @@ TEST(DeblurCli, ReportTileKernelsAreUsedWhenTheBlurVaries) {
   EXPECT_NE(missing.exit_code, 0);
   EXPECT_NE(missing.output.find("kernel_tile_3.txt"), std::string::npos) << missing.output;
   EXPECT_FALSE(std::filesystem::exists(dir / "missing"));
+}
+
+// End to end: a pair over 1200 px whose blur differs between its halves. `calibrate` writes the tiles' kernels with
+// their places and whether they disagree (here, grey and G only, their mean relative difference is ~0.4, under the
+// 0.6 of "varies"; the colour 1600×1200 pair of docs/RESULTS.md gave 0.75); `deblur --from --kernels tiles` deblurs
+// with them.
+TEST(DeblurCli, CalibrationOfAVaryingBlurWritesTileKernelsThatDeblurUses) {
+  test::TempDir dir;
+  cv::Mat row1, row2, sharp;
+  cv::hconcat(std::vector<cv::Mat>{test::levinImage(1), test::levinImage(2), test::levinImage(3)}, row1);
+  cv::hconcat(std::vector<cv::Mat>{test::levinImage(4), test::levinImage(1), test::levinImage(2)}, row2);
+  cv::vconcat(row1, row2, sharp);  // 765 × 510
+  cv::resize(sharp, sharp, {1400, 934}, 0, 0, cv::INTER_CUBIC);
+  sharp = cv::min(cv::max(sharp, 0.0), 1.0);
+  const ResponseCurve curve = gammaCurve(2.2);
+  cv::Mat blurred = irradianceBlur(sharp, curve, test::levinKernel(2));
+  irradianceBlur(sharp, curve, test::levinKernel(8)).colRange(700, 1400).copyTo(blurred.colRange(700, 1400));
+  const auto write8 = [&](const cv::Mat& unit, const std::filesystem::path& path) {
+    cv::Mat eight;
+    quantize(unit, 8).convertTo(eight, CV_8U, 255.0);
+    ASSERT_TRUE(cv::imwrite(path.string(), eight));
+  };
+  write8(sharp, dir / "sharp.png");
+  write8(blurred, dir / "blurred.png");
+  const auto calibration = test::run(quote(test::crfcalBinary()) + " calibrate -q " + quote(dir / "sharp.png") + " " +
+                                     quote(dir / "blurred.png") + " --ratio 1 --channels g --no-effects "
+                                     "--band-replicates 0 -o " + quote(dir / "cal"));
+  ASSERT_EQ(calibration.exit_code, 0) << calibration.output;
+  std::ifstream in(dir / "cal" / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  const auto& tiles = report["kernel"]["tile_kernels"];
+  ASSERT_GE(tiles.size(), 2u) << report["kernel"];
+  for (const auto& tile : tiles) {
+    EXPECT_TRUE(std::filesystem::exists(dir / "cal" / tile["text"].get<std::string>())) << tile;
+    const double x = tile["centre_in_blurred"][0].get<double>(), y = tile["centre_in_blurred"][1].get<double>();
+    EXPECT_TRUE(x > 0 && x < 1400 && y > 0 && y < 934) << tile;
+  }
+  const auto& disagreement = report["kernel"]["tile_disagreement"];
+  EXPECT_GT(disagreement["mean_relative"].get<double>(), 0.2) << disagreement;  // a uniform blur: ~0.1
+  EXPECT_EQ(disagreement["varies"].get<bool>(), disagreement["mean_relative"].get<double>() > 0.6) << disagreement;
+  const auto deblur = test::run(quote(test::crfcalBinary()) + " deblur " + quote(dir / "blurred.png") +
+                                " --fast --kernels tiles --from " + quote(dir / "cal" / "report.json") + " -o " +
+                                quote(dir / "out"));
+  ASSERT_EQ(deblur.exit_code, 0) << deblur.output;
+  EXPECT_NE(deblur.output.find("local kernels"), std::string::npos) << deblur.output;
 }
 
 TEST(DeblurCli, BadKernelExitsOneWithOneLine) {

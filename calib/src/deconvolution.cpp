@@ -230,9 +230,9 @@ class ShrinkAndAdjoint {
     else shrinkRowAs<false>(here, below, static_cast<T>(1.0 / beta), bxr, byr, pxr, pyr, cols_);
   }
 
-  // One row's shrinkage with the multiplier update chosen at compile time and no aliasing between the rows, so that
-  // the compiler vectorises the loop (with errno-free sqrt: deconvolution.cpp is built with -fno-math-errno; the
-  // arithmetic is the same element by element).
+  // One row's shrinkage with the multiplier update chosen at compile time: float rows four at a time
+  // (shrinkRowSimd), the rest and the wrap-around one by one (std::sqrt without an errno branch: deconvolution.cpp is
+  // built with -fno-math-errno; the arithmetic is the same element by element either way).
   template <bool kBregman>
   static void shrinkRowAs(const T* __restrict here, const T* __restrict below, T threshold, T* __restrict bxr,
                           T* __restrict byr, T* __restrict pxr, T* __restrict pyr, int cols) {
