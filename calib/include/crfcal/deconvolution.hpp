@@ -17,8 +17,8 @@
 //     b ← b + ∇u − w), which converges at a fixed moderate β in fewer steps. M is the data mask (below).
 //   wiener — U = conj(K̂) F̂ / (|K̂|² + nsr), the linear baseline.
 //
-// Data mask M and boundaries: u lives on a domain padded by the kernel's size on every side (FFT sizes from
-// cv::getOptimalDFTSize), so the FFT's wrap-around only couples padded pixels; M = 0 on the padding and on
+// Data mask M and boundaries: u lives on a domain padded by the kernel's size on every side (FFT sizes even and
+// 5-smooth; the DFTs are FFTW's), so the FFT's wrap-around only couples padded pixels; M = 0 on the padding and on
 // saturated pixels of B (B ≥ `saturation` in that channel: the recorded value is only a lower bound, as the seed
 // excludes them from the fit), 1 elsewhere. The masked data term is minimised by majorisation–minimisation:
 // before each u-step the masked-out pixels of f are replaced by the current K ⊗ u (ḟ = M f + (1 − M) K ⊗ u), which
@@ -81,7 +81,7 @@ struct DeconvolutionOptions {
   void check() const;          // throws InvalidInput naming the bad option
 
   // These options with the fast TV schedule (`crfcal deblur --fast`): 8 u-steps at β = 128 instead of 25 at β = 256,
-  // 0.36× the time. Levin bench: −0.8 dB, the irradiance domain's gain over the intensity domain +3.25 dB instead of
+  // about a third of the time (12 MP: 7.5 s against 22.2 s). Levin bench: −0.8 dB, the irradiance domain's gain over the intensity domain +3.25 dB instead of
   // +3.79 (docs/RESULTS.md, "Speed: fewer TV steps").
   DeconvolutionOptions withFastSchedule() const;
 };
