@@ -1,5 +1,6 @@
 // MomentResiduals with an EMoR curve forms H E and N E once (φ is linear in the EMoR coefficients): its data rows
-// and their Jacobian must equal the direct products H φ, N φ at every point, to rounding.
+// and their Jacobian must equal the direct products H φ, N φ at every point, to rounding. With a GGCM curve it
+// multiplies by H and N's non-zeros when they are sparse: the same check.
 #include <cmath>
 #include <random>
 #include <vector>
@@ -8,6 +9,7 @@
 
 #include "../calib/src/crf_curve.hpp"
 #include "../calib/src/crf_objective.hpp"
+#include "crfcal/ggcm.hpp"
 
 namespace crfcal::crf_fit {
 namespace {
@@ -77,6 +79,57 @@ TEST(MomentResiduals, EmorRowsFromPrecomputedProductsEqualTheDirectProductsAndTh
     }
   }
   EXPECT_GE(compared, 3);  // the points must mostly lie in EMoR's monotone domain, or the test says nothing
+}
+
+// The data rows and their Jacobian (coefficients and log r) against the direct products and their central
+// differences, at `points` parameter vectors; returns how many points lay in the curve's domain.
+int compareWithDirectProducts(const Curve& curve, const MomentSystem& sys, const std::vector<Eigen::VectorXd>& points) {
+  const int rows = static_cast<int>(sys.h.rows()), dims = curve.dims();
+  const MomentResiduals residuals(curve, sys, 2.0, true, false);
+  int compared = 0;
+  for (const Eigen::VectorXd& p : points) {
+    Eigen::VectorXd res;
+    Eigen::MatrixXd jac;
+    if (!residuals(p, res, &jac)) continue;
+    ++compared;
+    const Eigen::VectorXd direct = directRows(curve, sys, p, std::exp(p[dims]));
+    EXPECT_LE((res.head(rows) - direct).cwiseAbs().maxCoeff(), 1e-12 * (1 + direct.cwiseAbs().maxCoeff()));
+    for (int j = 0; j <= dims; ++j) {
+      const double h = 1e-6;
+      Eigen::VectorXd up = p, down = p;
+      up[j] += h;
+      down[j] -= h;
+      const Eigen::VectorXd numeric = (directRows(curve, sys, up, std::exp(up[dims])) -
+                                       directRows(curve, sys, down, std::exp(down[dims]))) / (2 * h);
+      EXPECT_LE((jac.col(j).head(rows) - numeric).cwiseAbs().maxCoeff(), 1e-5 * (1 + numeric.cwiseAbs().maxCoeff()))
+          << "parameter " << j;
+    }
+  }
+  return compared;
+}
+
+TEST(MomentResiduals, GgcmRowsFromSparseAndDenseProductsEqualTheDirectProductsAndTheirJacobianTheDifferences) {
+  std::mt19937 rng(11);
+  const int levels = 256, rows = 60, degree = 4;
+  const Curve curve(Curve::kGgcm, levels, degree);
+  std::vector<Eigen::VectorXd> points;
+  std::normal_distribution<double> jitter(0.0, 0.02);
+  for (double gamma : {1.8, 2.2, 2.6}) {
+    const std::vector<double> alpha = ggcm::fromGamma(gamma, degree).alpha;
+    Eigen::VectorXd p(curve.dims() + 1);
+    for (int k = 0; k < curve.dims(); ++k) p[k] = alpha[static_cast<std::size_t>(k)] + jitter(rng);
+    p[curve.dims()] = std::log(gamma);
+    points.push_back(p);
+  }
+  // 13 of 256 levels per row of H, one of N: stored by their non-zeros.
+  const MomentSystem sparse = randomSystem(rows, levels, rng);
+  EXPECT_EQ(compareWithDirectProducts(curve, sparse, points), 3);
+  // Every level of H filled: multiplied densely.
+  MomentSystem dense = sparse;
+  std::uniform_real_distribution<double> u(0.0, 0.01);
+  for (int i = 0; i < rows; ++i)
+    for (int v = 0; v < levels; ++v) dense.h(i, v) += u(rng);
+  EXPECT_EQ(compareWithDirectProducts(curve, dense, points), 3);
 }
 
 }  // namespace

@@ -364,7 +364,18 @@ std::atomic<std::uint64_t> next_residuals_id{1};
 MomentResiduals::MomentResiduals(const Curve& curve, const MomentSystem& sys, double r0, bool fit_ratio,
                                  bool with_prior)
     : curve_(curve), sys_(sys), r0_(r0), fit_ratio_(fit_ratio), with_prior_(with_prior), id_(next_residuals_id++) {
-  if (curve.kind() != Curve::kEmor) return;
+  if (curve.kind() != Curve::kEmor) {
+    // Stored sparse when that saves at least half of the products' multiplications (a sparse product costs about
+    // twice a dense one per stored entry).
+    const Eigen::Index entries = sys.h.size() + sys.n.size();
+    const Eigen::Index nonzeros = (sys.h.array() != 0).count() + (sys.n.array() != 0).count();
+    sparse_ = entries > 0 && 4 * nonzeros <= entries;
+    if (sparse_) {
+      h_sparse_ = sys.h.sparseView(0.0, 0.0);
+      n_sparse_ = sys.n.sparseView(0.0, 0.0);
+    }
+    return;
+  }
   const int L = sys.levels(), d = curve.dims();
   const std::vector<double>& basis = curve.emorBasisOnLevels();
   Eigen::Map<const Eigen::VectorXd> mean(basis.data(), L);
@@ -414,6 +425,10 @@ bool MomentResiduals::evaluate(const Eigen::VectorXd& p, Evaluation& e) const {
     Eigen::Map<const Eigen::VectorXd> c(p.data(), d);
     e.hf = h_mean_ + h_basis_ * c;
     nf = n_mean_ + n_basis_ * c;
+  } else if (sparse_) {
+    Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
+    e.hf = h_sparse_ * fv;
+    nf = n_sparse_ * fv;
   } else {
     Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
     e.hf = sys.h * fv;
@@ -457,8 +472,30 @@ void MomentResiduals::jacobian(const Eigen::VectorXd& p, const Evaluation& e, Ei
   const int np = static_cast<int>(p.size());
   jac.setZero(rows + extra, np);
   Eigen::Map<const RowMajor> jm(jf.data(), d, L);
-  const Eigen::MatrixXd draw = emor ? Eigen::MatrixXd(r * h_basis_ - n_basis_)
-                                    : Eigen::MatrixXd((r * sys.h - sys.n) * jm.transpose());  // rows × d
+  Eigen::MatrixXd draw;  // ∂(r H φ − N φ)/∂p, rows × d
+  if (emor) {
+    draw = r * h_basis_ - n_basis_;
+  } else if (sparse_) {
+    // Row by row over the non-zeros, the Jacobian of φ transposed so that each level's d derivatives are adjacent.
+    const RowMajor jt = jm.transpose();  // levels × d
+    RowMajor acc = RowMajor::Zero(rows, d);
+    for (int i = 0; i < rows; ++i) {
+      double* out = acc.row(i).data();
+      for (SparseRows::InnerIterator it(h_sparse_, i); it; ++it) {
+        const double v = r * it.value();
+        const double* in = jt.row(it.col()).data();
+        for (int j = 0; j < d; ++j) out[j] += v * in[j];
+      }
+      for (SparseRows::InnerIterator it(n_sparse_, i); it; ++it) {
+        const double v = it.value();
+        const double* in = jt.row(it.col()).data();
+        for (int j = 0; j < d; ++j) out[j] -= v * in[j];
+      }
+    }
+    draw = acc;
+  } else {
+    draw = (r * sys.h - sys.n) * jm.transpose();
+  }
   for (int i = 0; i < rows; ++i) {
     const double scale = (L - 1) / double(sys.v1[i] - sys.v0[i]);
     for (int j = 0; j < d; ++j) {

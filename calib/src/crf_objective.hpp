@@ -13,6 +13,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/SparseCore>
 
 #include "crf_censored.hpp"
 #include "crf_curve.hpp"
@@ -153,6 +154,13 @@ class MomentResiduals {
   // levels products are formed once per fit here instead of once per evaluation and Jacobian (rows × dims).
   Eigen::VectorXd h_mean_, n_mean_;  // H e₀, N e₀
   Eigen::MatrixXd h_basis_, n_basis_;  // H E, N E (rows × dims)
+  // Other models: H and N stored by their non-zeros when they are sparse. A row of N holds B's few levels in its
+  // bin (≈ 4 of 256 on the phone pairs), a row of H the kernel masses of I's levels around them (≈ 20 %); the
+  // products H φ, N φ and (r H − N) Jᵀ, most of a GGCM evaluation, then cost their non-zeros instead of
+  // rows × levels. Dense when a level operator (crfcal/noise_debias.hpp) has filled H.
+  using SparseRows = Eigen::SparseMatrix<double, Eigen::RowMajor>;
+  bool sparse_ = false;
+  SparseRows h_sparse_, n_sparse_;
 };
 
 // Continuously-updated GMM (CUE): residual_k = S_k / √V_k(φ, r), S_k = (r Ĥ_k − N_k)·φ the bin sum and
