@@ -1,5 +1,7 @@
 // Blur kernels and the forward blur models of Sec. 3 (blur_model.hpp, kernel.hpp, simulation.hpp).
+#include <algorithm>
 #include <cmath>
+#include <utility>
 #include <limits>
 
 #include <gtest/gtest.h>
@@ -140,11 +142,8 @@ TEST(BlurModel, ConvolveMatchesDirectSum) {
   }
 }
 
-TEST(BlurModel, LocalRangeMatchesDirectMinMaxOverSupport) {
-  const cv::Mat image = randomImage(30, 28, 11);
-  cv::Mat kernel = randomImage(5, 7, 12);
-  kernel.setTo(0.0, kernel < 0.5);  // a sparse support, like a motion kernel
-  kernel = normalizeKernel(kernel);
+// Imin / Imax over the kernel's support, pixel by pixel, compared to the bit with localRange.
+void expectDirectMinMaxOverSupport(const cv::Mat& image, const cv::Mat& kernel) {
   const LocalRange range = localRange(image, kernel);
   const int cy = kernel.rows / 2, cx = kernel.cols / 2;
   for (int y = 0; y < image.rows; ++y)
@@ -161,6 +160,31 @@ TEST(BlurModel, LocalRangeMatchesDirectMinMaxOverSupport) {
       ASSERT_EQ(range.min.at<double>(y, x), lo) << x << "," << y;
       ASSERT_EQ(range.max.at<double>(y, x), hi) << x << "," << y;
     }
+}
+
+cv::Mat sparseKernel(int rows, int cols, std::uint64_t seed) {
+  cv::Mat kernel = randomImage(rows, cols, seed);
+  kernel.setTo(0.0, kernel < 0.5);  // a sparse support, like a motion kernel
+  return normalizeKernel(kernel);
+}
+
+TEST(BlurModel, LocalRangeMatchesDirectMinMaxOverSupport) {
+  expectDirectMinMaxOverSupport(randomImage(30, 28, 11), sparseKernel(5, 7, 12));
+}
+
+// Images of 8- and 16-bit codes (as toUnitGray makes them) take localRange's integer path: the same doubles.
+TEST(BlurModel, LocalRangeOfEightAndSixteenBitCodesMatchesDirectMinMaxOverSupport) {
+  const cv::Mat kernel = sparseKernel(15, 11, 14);
+  for (const auto& [depth, top] : {std::pair{CV_8U, 255.0}, std::pair{CV_16U, 65535.0}}) {
+    cv::Mat codes(40, 36, depth), unit;
+    cv::RNG rng(15);
+    rng.fill(codes, cv::RNG::UNIFORM, 0.0, top + 1);
+    codes.convertTo(unit, CV_64F, 1.0 / top);
+    expectDirectMinMaxOverSupport(unit, kernel);
+    // and a value off the code grid: the double path
+    unit.at<double>(3, 4) += 1e-9;
+    expectDirectMinMaxOverSupport(unit, kernel);
+  }
 }
 
 TEST(BlurModel, Quantize) {

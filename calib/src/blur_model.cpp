@@ -1,5 +1,8 @@
 #include "crfcal/blur_model.hpp"
 
+#include <cmath>
+#include <cstdint>
+
 #include <opencv2/imgproc.hpp>
 
 #include "crfcal/error.hpp"
@@ -62,12 +65,50 @@ cv::Mat blurInconsistency(const cv::Mat& blurred, const cv::Mat& intensity_blurr
   return a - b;
 }
 
+namespace {
+
+// The integer codes of an image whose every value is q · (1 / (2^bits − 1)) with q an integer code, as toUnitGray
+// makes them from 8- or 16-bit storage (empty when some value is not: then the image is taken as it is).
+cv::Mat integerCodes(const cv::Mat& unit, int bits) {
+  const double top = bits == 8 ? 255.0 : 65535.0, scale = 1.0 / top;
+  cv::Mat codes(unit.size(), bits == 8 ? CV_8U : CV_16U);
+  for (int y = 0; y < unit.rows; ++y) {
+    const double* v = unit.ptr<double>(y);
+    for (int x = 0; x < unit.cols; ++x) {
+      const double q = std::round(v[x] * top);
+      if (!(q >= 0 && q <= top) || q * scale != v[x]) return {};
+      if (bits == 8) codes.at<std::uint8_t>(y, x) = static_cast<std::uint8_t>(q);
+      else codes.at<std::uint16_t>(y, x) = static_cast<std::uint16_t>(q);
+    }
+  }
+  return codes;
+}
+
+}  // namespace
+
 LocalRange localRange(const cv::Mat& sharp, const cv::Mat& kernel) {
   cv::Mat source, k, support;
   sharp.convertTo(source, CV_64F);
   kernel.convertTo(k, CV_64F);
   cv::flip(kernelSupport(k), support, -1);
   LocalRange range;
+  // Minimum and maximum commute with the increasing map q → q / (2^bits − 1): on an image of 8- or 16-bit codes they
+  // are taken on the codes, where OpenCV's morphology is vectorised (the fitter pays this in every refit, with supports
+  // up to 35 px), and the result is q · scale again: the same doubles to the bit.
+  for (int bits : {8, 16}) {
+    const cv::Mat codes = integerCodes(source, bits);
+    if (codes.empty()) continue;
+    const double scale = bits == 8 ? 1.0 / 255.0 : 1.0 / 65535.0;
+    cv::Mat lo, hi;
+    cv::erode(codes, lo, support, flippedAnchor(k), 1, cv::BORDER_REPLICATE);
+    cv::dilate(codes, hi, support, flippedAnchor(k), 1, cv::BORDER_REPLICATE);
+    // q · scale, the product integerCodes found equal to every pixel's value
+    lo.convertTo(range.min, CV_64F);
+    hi.convertTo(range.max, CV_64F);
+    range.min *= scale;
+    range.max *= scale;
+    return range;
+  }
   cv::erode(source, range.min, support, flippedAnchor(k), 1, cv::BORDER_REPLICATE);
   cv::dilate(source, range.max, support, flippedAnchor(k), 1, cv::BORDER_REPLICATE);
   return range;
