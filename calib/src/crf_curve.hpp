@@ -42,6 +42,8 @@ class Curve {
   // EMoR only: the mean curve and the dims() basis functions on the levels, (dims() + 1) × levels, row-major (φ is
   // linear in the coefficients: f = row 0 + Σ_k x_k · row k).
   const std::vector<double>& emorBasisOnLevels() const { return basis_levels_; }
+  // EMoR only: the same on the kGrid validity grid, (dims() + 1) × kGrid.
+  const std::vector<double>& emorBasisOnGrid() const { return basis_grid_; }
 
  private:
   // GGCM's nodes x = v/(n−1) with what does not depend on α: log x and the powers x^j (the Jacobian's factors).

@@ -333,7 +333,14 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
   for (int iteration = st.iteration; iteration < kFitPasses; ++iteration) {
     // J = ∂r/∂θ: −w c_i, and through w the φ terms' −r w h_k'(B) where the derivative is not floored.
     const Eigen::VectorXd unfloored = (d.array() >= min_derivative_).cast<double>().matrix();
-    J.noalias() = -(w.asDiagonal() * C);
+    // −w_i c_i, column by column (the same products as −(diag(w) C); Eigen's expression spilled a register per
+    // element here, and this loop runs on every pass of hundreds of fits)
+    for (int a = 0; a < cols; ++a) {
+      const double* c_col = C.col(a).data();
+      const double* w_data = w.data();
+      double* j_col = J.col(a).data();
+      for (Eigen::Index k = 0; k < n; ++k) j_col[k] = -(w_data[k] * c_col[k]);
+    }
     J.rightCols(terms).noalias() -= (r.cwiseProduct(w).cwiseProduct(unfloored)).asDiagonal() * Dh;
     Eigen::MatrixXd JtJ = Eigen::MatrixXd::Zero(cols, cols);
     JtJ.selfadjointView<Eigen::Lower>().rankUpdate(J.transpose());
