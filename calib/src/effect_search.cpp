@@ -198,10 +198,17 @@ void describeSelectedModel(EffectSearch& search) {
   std::vector<const LevelEffect*> effects;
   for (const LevelEffect* effect : levelEffects())
     if (!effect->not_applicable(search)) effects.push_back(effect);
-  // The fits of the model extended by each effect not in it are independent: one per core.
+  // The fits of the model extended by each effect not in it are independent: one per core, the dearest first
+  // (a plateau level grid, then the coupled channels of mixing), so that no long fit starts last.
   const int n = static_cast<int>(effects.size());
   std::vector<Evaluation> extended(n);
-  const std::vector<std::exception_ptr> errors = detail::runInParallel(n, [&](int i) {
+  std::vector<int> order;
+  for (int group = 0; group < 3; ++group)
+    for (int i = 0; i < n; ++i) {
+      const Spec spec = effects[i]->extend(search.current);
+      if ((spec.clipping ? 0 : spec.mixing ? 1 : 2) == group) order.push_back(i);
+    }
+  const std::vector<std::exception_ptr> errors = detail::runInParallelDearestFirst(order, [&](int i) {
     if (!effects[i]->in(search.current))
       extended[i] = search.problem.evaluate(effects[i]->extend(search.current), false);
   });
