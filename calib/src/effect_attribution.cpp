@@ -15,39 +15,20 @@
 
 namespace crfcal::effect {
 
-namespace {
-
-// The candidates' fit jobs (3 per candidate: either fold, all samples), the dearest first: a plateau level grid
-// (clipping: a dozen levels per channel), then the coupled channels of mixing (three alternations), then the rest,
-// each group in its candidates' order.
-std::vector<int> dearestFirst(const std::vector<Spec>& extended) {
-  std::vector<int> order;
-  for (int group = 0; group < 3; ++group)
-    for (int i = 0; i < static_cast<int>(extended.size()); ++i) {
-      const Spec& spec = extended[static_cast<std::size_t>(i)];
-      const int g = spec.clipping ? 0 : spec.mixing ? 1 : 2;
-      if (g == group)
-        for (int part = 0; part < 3; ++part) order.push_back(3 * i + part);
-    }
-  return order;
-}
-
-}  // namespace
-
 std::vector<Candidate> levelCandidates(const EffectSearch& search, const Problem& problem, const Spec& base,
                                        const Evaluation& base_eval) {
   std::vector<const LevelEffect*> effects;
   for (const LevelEffect* effect : levelEffects())
     if (!effect->not_applicable(search) && !effect->in(base)) effects.push_back(effect);
   // Each candidate's evaluation is three independent fits of the same problem (either fold, all samples): 3n jobs
-  // over the cores, so that the dearest candidate (clipping fits a grid of plateau levels) does not leave the other
-  // core idle once the cheap ones are done. The results are those of problem.evaluate, in levelEffects() order.
+  // over the cores, the dearest candidate's first (clipping fits a grid of plateau levels), so that no core waits
+  // at the end for a long fit begun late. The results are those of problem.evaluate, in levelEffects() order.
   const int n = static_cast<int>(effects.size());
   std::vector<Spec> extended(n);
   for (int i = 0; i < n; ++i) extended[i] = effects[i]->extend(base);
   std::vector<std::array<PartFit, 3>> parts(n);  // fold 0, fold 1, all samples
   const std::vector<std::exception_ptr> fit_errors =
-      detail::runInParallelDearestFirst(dearestFirst(extended), [&](int job) {
+      detail::runInParallelDearestFirst(dearestFitsFirst(extended, 3), [&](int job) {
         const int i = job / 3, part = job % 3;
         parts[i][part] = problem.fitPart(extended[i], part == 2 ? -1 : part, &base_eval);
       });

@@ -442,6 +442,17 @@ double Problem::residualOfRow(const Samples& s, std::size_t i, const ChannelFit&
   return w * (u - std::min(predicted, c));
 }
 
+std::vector<int> dearestFitsFirst(const std::vector<Spec>& models, int jobs_per_model) {
+  std::vector<int> order;
+  for (int group = 0; group < 3; ++group)
+    for (int i = 0; i < static_cast<int>(models.size()); ++i) {
+      const Spec& spec = models[static_cast<std::size_t>(i)];
+      if ((spec.clipping ? 0 : spec.mixing ? 1 : 2) != group) continue;
+      for (int part = 0; part < jobs_per_model; ++part) order.push_back(jobs_per_model * i + part);
+    }
+  return order;
+}
+
 thread_local const std::vector<std::vector<double>>* Problem::coupled_ = nullptr;
 
 // With mixing, the channels' fits are coupled: the other channels' X_d follow their own φ re-fits

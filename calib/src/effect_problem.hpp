@@ -131,6 +131,12 @@ struct Spec {
   double scale = 1;
 };
 
+// The order in which to start the fits of these models, `jobs_per_model` jobs each (model i's are i·jobs_per_model
+// onwards), the dearest first so that no long fit starts last (parallel_jobs.hpp): a plateau level grid (clipping, a
+// dozen levels per channel and part), then the coupled channels of mixing (three alternations), then the rest, each
+// group in the models' order.
+std::vector<int> dearestFitsFirst(const std::vector<Spec>& models, int jobs_per_model);
+
 struct ChannelFit {
   Eigen::VectorXd theta;       // coefficients of the columns
   double clip = 0;             // clipping level (irradiance); 0: none

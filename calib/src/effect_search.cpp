@@ -202,16 +202,13 @@ void describeSelectedModel(EffectSearch& search) {
   // (a plateau level grid, then the coupled channels of mixing), so that no long fit starts last.
   const int n = static_cast<int>(effects.size());
   std::vector<Evaluation> extended(n);
-  std::vector<int> order;
-  for (int group = 0; group < 3; ++group)
-    for (int i = 0; i < n; ++i) {
-      const Spec spec = effects[i]->extend(search.current);
-      if ((spec.clipping ? 0 : spec.mixing ? 1 : 2) == group) order.push_back(i);
-    }
-  const std::vector<std::exception_ptr> errors = detail::runInParallelDearestFirst(order, [&](int i) {
-    if (!effects[i]->in(search.current))
-      extended[i] = search.problem.evaluate(effects[i]->extend(search.current), false);
-  });
+  std::vector<Spec> models;
+  for (const LevelEffect* effect : effects) models.push_back(effect->extend(search.current));
+  const std::vector<std::exception_ptr> errors =
+      detail::runInParallelDearestFirst(dearestFitsFirst(models, 1), [&](int i) {
+        if (!effects[i]->in(search.current))
+          extended[i] = search.problem.evaluate(models[static_cast<std::size_t>(i)], false);
+      });
   for (int i = 0; i < n; ++i) {
     if (errors[i]) std::rethrow_exception(errors[i]);
     const LevelEffect& effect = *effects[i];

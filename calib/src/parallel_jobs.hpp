@@ -10,10 +10,9 @@
 #pragma once
 
 #include <algorithm>
-#include <functional>
 #include <exception>
+#include <functional>
 #include <vector>
-
 
 namespace crfcal::detail {
 
