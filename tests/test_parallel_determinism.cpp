@@ -17,18 +17,8 @@
 namespace crfcal {
 namespace {
 
-// Restores OpenCV's thread count when the test ends, also on a failed assertion.
-class ThreadCount {
- public:
-  explicit ThreadCount(int threads) : previous_(cv::getNumThreads()) { cv::setNumThreads(threads); }
-  ~ThreadCount() { cv::setNumThreads(previous_); }
-
- private:
-  int previous_;
-};
-
 PairCalibrationResult calibrateWithThreads(const cv::Mat& sharp, const cv::Mat& blurred, int threads) {
-  const ThreadCount scope(threads);
+  const test::ThreadCount scope(threads);
   PairCalibrationOptions options;
   options.register_pair = false;
   options.fit.nominal_ratio = 2.1;  // EXIF 5 % off: the ratio stage runs its half-sample refits

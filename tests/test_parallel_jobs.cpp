@@ -8,21 +8,13 @@
 #include <opencv2/core.hpp>
 
 #include "../calib/src/parallel_jobs.hpp"
+#include "test_support.hpp"
 
 namespace crfcal::detail {
 namespace {
 
-class ThreadCount {
- public:
-  explicit ThreadCount(int threads) : previous_(cv::getNumThreads()) { cv::setNumThreads(threads); }
-  ~ThreadCount() { cv::setNumThreads(previous_); }
-
- private:
-  int previous_;
-};
-
 TEST(ParallelJobs, NestedJobsRunOnceEachAndHandBackTheirExceptionsByIndex) {
-  const ThreadCount scope(2);
+  const test::ThreadCount scope(2);
   constexpr int kOuter = 3, kInner = 7;
   std::vector<std::vector<int>> results(kOuter, std::vector<int>(kInner, 0));
   std::atomic<int> runs{0};
@@ -49,7 +41,7 @@ TEST(ParallelJobs, NestedJobsRunOnceEachAndHandBackTheirExceptionsByIndex) {
 }
 
 TEST(ParallelJobs, OneThreadRunsTheJobsInTheGivenOrder) {
-  const ThreadCount scope(1);
+  const test::ThreadCount scope(1);
   const std::vector<int> order{3, 0, 4, 1, 2};
   std::vector<int> ran;
   const std::vector<std::exception_ptr> errors = runInParallelDearestFirst(order, [&](int i) { ran.push_back(i); });

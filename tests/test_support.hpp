@@ -23,6 +23,17 @@ SimulationResult gammaPairAtRatio4();
 RatioEvidence combinedRatioEvidence(double images_sigma, double resampled_sigma, double nominal_sigma,
                                     double log_difference);
 
+// OpenCV's thread count (and so crfcal's job arena) set for a scope and restored when it ends, also on a failed
+// assertion.
+class ThreadCount {
+ public:
+  explicit ThreadCount(int threads) : previous_(cv::getNumThreads()) { cv::setNumThreads(threads); }
+  ~ThreadCount() { cv::setNumThreads(previous_); }
+
+ private:
+  int previous_;
+};
+
 // A fresh temporary directory removed when the object dies.
 class TempDir {
  public:
