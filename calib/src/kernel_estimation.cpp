@@ -13,6 +13,7 @@
 #include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
+#include "float_gram.hpp"
 
 namespace crfcal {
 namespace {
@@ -141,6 +142,7 @@ void accumulate(const Direction& d, const std::vector<cv::Point>& offsets, Norma
   std::vector<Eigen::MatrixXd> run_M(static_cast<std::size_t>(runs));
   std::vector<Eigen::VectorXd> run_c(static_cast<std::size_t>(runs));
   std::vector<double> run_yy(static_cast<std::size_t>(runs), 0.0);
+  const detail::VectorUnits units = detail::widestVectorUnits();
   cv::parallel_for_(cv::Range(0, runs), [&](const cv::Range& run_range) {
     for (int run = run_range.start; run < run_range.end; ++run) {
       Eigen::MatrixXd M = Eigen::MatrixXd::Zero(ns, ns);
@@ -174,8 +176,7 @@ void accumulate(const Direction& d, const std::vector<cv::Point>& offsets, Norma
           y.head(rows).array() *= w.head(rows).array();
         }
         const auto Ab = A.topRows(rows);
-        G.setZero();
-        G.selfadjointView<Eigen::Lower>().rankUpdate(Ab.transpose());
+        detail::lowerGram(A.data(), rows, ns, block, G.data(), units);
         M += G.cast<double>();
         c += (Ab.transpose() * y.head(rows)).cast<double>();
         yy += static_cast<double>(y.head(rows).squaredNorm());
