@@ -13,6 +13,7 @@
 #include "crfcal/kernel.hpp"
 #include "crfcal/kernel_estimation.hpp"
 #include "effect_problem.hpp"
+#include "gram_products.hpp"
 #include "parallel_jobs.hpp"
 
 namespace crfcal::effect {
@@ -57,6 +58,7 @@ struct KernelDesign {
   // The folds' Gram matrices (n·(3m)²/2 each, the test's main cost) are independent: one per core.
   void normalEquations() {
     const int k = m();
+    const detail::VectorUnits units = detail::widestVectorUnits();
     const auto errors = detail::runInParallel(2, [&](int f) {
       std::vector<Eigen::Index> rows;
       for (int r = 0; r < n(); ++r)
@@ -76,7 +78,8 @@ struct KernelDesign {
           chunk.row(i).tail(k) = v(r) * A.row(r);
           target(i) = t(r);
         }
-        gram[f].selfadjointView<Eigen::Lower>().rankUpdate(chunk.transpose());
+        detail::addLowerGram(chunk.data(), static_cast<int>(count), 3 * k, static_cast<int>(count), gram[f].data(),
+                             units);
         rhs[f].noalias() += chunk.transpose() * target;
       }
       gram[f] = gram[f].selfadjointView<Eigen::Lower>();

@@ -13,7 +13,7 @@
 #include "crfcal/blur_model.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
-#include "float_gram.hpp"
+#include "gram_products.hpp"
 
 namespace crfcal {
 namespace {
@@ -176,7 +176,8 @@ void accumulate(const Direction& d, const std::vector<cv::Point>& offsets, Norma
           y.head(rows).array() *= w.head(rows).array();
         }
         const auto Ab = A.topRows(rows);
-        detail::lowerGram(A.data(), rows, ns, block, G.data(), units);
+        G.setZero();
+        detail::addLowerGram(A.data(), rows, ns, block, G.data(), units);
         M += G.cast<double>();
         c += (Ab.transpose() * y.head(rows)).cast<double>();
         yy += static_cast<double>(y.head(rows).squaredNorm());
