@@ -1,5 +1,6 @@
 // The refit guard (calib/src/effect_refit_guard.cpp): a detected effect's refit is adopted only when it is physically
-// plausible and explains the held-back pixels at least as well as the base fit; the effect stays named either way.
+// plausible and explains the held-back pixels at least as well as the base fit, each under its own model and both
+// under the extended one; the effect stays named either way.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -105,6 +106,43 @@ TEST(EffectRefitGuard, PlausibleRefitOfAPlantedOffsetIsAdopted) {
   EXPECT_TRUE(report.refit_adopted) << report.refit_rejected_reason << "\n" << report.summary();
   EXPECT_LE(report.heldout_error_refit, report.heldout_error_base_fit);
   EXPECT_FALSE(report.fits.empty());
+}
+
+TEST(EffectRefitGuard, RefitIsRejectedWhenTheBasePhiExplainsTheHeldBackPixelsBetterUnderTheSameModel) {
+  // The offset is real and is named, but the base fit's φ is already the true curve at the true r: the refit's φ,
+  // fitted to the corrected pair, cannot explain the held-back pixels better than the truth does under the same
+  // extended model (the offset fitted for both), so the truth is kept although the extended model beats the seed's.
+  const ResponseModel truth = TableModel{io::readCurveTable(samples() / "camera_curves" / "CanonPowerShotG9.csv")};
+  const cv::Mat K = levinKernel(1);
+  PlantingOptions po;
+  po.effect = "black_level_offset";
+  po.strength = 2 * plantingThreshold("black_level_offset");
+  po.ratio = 1.25;
+  po.seed = 15;
+  const PlantedPair pair = plantEffect(photoPair(), truth, K, po);
+  CrfFitOptions fo;
+  fo.nominal_ratio = pair.exif_ratio;
+  EffectInputs in;
+  in.channels = {"G"};
+  in.sharp["G"] = pair.sharp;
+  in.blurred["G"] = pair.blurred;
+  CrfFitResult base = fitInverseCrf(pair.sharp, pair.blurred, K, fo);
+  base.inverse_crf = sampleInverse(truth);
+  base.model = TableModel{base.inverse_crf};
+  base.ratio = pair.true_ratio;
+  in.fits["G"] = base;
+  in.kernel = K;
+  in.kernel_estimated = false;
+  in.nominal_ratio = pair.exif_ratio;
+  in.fit = fo;
+  const EffectReport report = diagnoseEffects(in);
+  const auto detected = report.detected();
+  ASSERT_NE(std::find(detected.begin(), detected.end(), "black_level_offset"), detected.end()) << report.summary();
+  ASSERT_TRUE(report.refit_tried) << report.summary();
+  EXPECT_FALSE(report.refit_adopted) << report.summary();
+  EXPECT_TRUE(report.fits.empty());
+  EXPECT_LT(report.heldout_error_base_fit_selected_model, report.heldout_error_refit) << report.summary();
+  EXPECT_NE(report.refit_rejected_reason.find("same extended model"), std::string::npos) << report.refit_rejected_reason;
 }
 
 }  // namespace

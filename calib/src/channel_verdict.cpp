@@ -195,7 +195,11 @@ std::string refitNote(const RefitEvidence& refit) {
   if (!refit.tried) return {};
   if (refit.adopted)
     return format("the effects' refit is reported: held-back pixels' error %.3g, the base fit's %.3g (not worse)",
-                  refit.heldout_error_refit, refit.heldout_error_base_fit);
+                  refit.heldout_error_refit, refit.heldout_error_base_fit) +
+           (refit.heldout_error_base_fit_selected_model > 0
+                ? format(", %.3g with the base fit's phi under the extended model",
+                         refit.heldout_error_base_fit_selected_model)
+                : std::string());
   return "the effects' refit was rejected (" + refit.rejected_reason + "); the base fit is reported";
 }
 

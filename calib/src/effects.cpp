@@ -65,17 +65,23 @@ std::string EffectReport::summary() const {
       s << buffer;
     }
   }
+  // The base fit's φ under the extended model (guard test 3; 0 when not compared: a per-tile refit).
+  char same_model[120] = "";
+  if (heldout_error_base_fit_selected_model > 0)
+    std::snprintf(same_model, sizeof same_model, ", %.3g with the base fit's phi under the extended model",
+                  heldout_error_base_fit_selected_model);
   if (refit_adopted) {
     char buffer[200];
     std::snprintf(buffer, sizeof buffer,
-                  "\n  phi refitted with the extended model (held-out error %.3g vs the base fit's %.3g)",
+                  "\n  phi refitted with the extended model (held-out error %.3g vs the base fit's %.3g",
                   heldout_error_refit, heldout_error_base_fit);
-    s << buffer;
+    s << buffer << same_model << ")";
   } else if (refit_tried) {
     char buffer[200];
-    std::snprintf(buffer, sizeof buffer, " (held-out error of the refit %.3g, of the base fit %.3g)",
+    std::snprintf(buffer, sizeof buffer, " (held-out error of the refit %.3g, of the base fit %.3g",
                   heldout_error_refit, heldout_error_base_fit);
-    s << "\n  refit with the extended model rejected, the base fit's phi kept: " << refit_rejected_reason << buffer;
+    s << "\n  refit with the extended model rejected, the base fit's phi kept: " << refit_rejected_reason << buffer
+      << same_model << ")";
   }
   return s.str();
 }

@@ -188,6 +188,7 @@ void computeVerdict(PairCalibrationState& state) {
   refit.rejected_reason = result.effects.refit_rejected_reason;
   refit.heldout_error_base_fit = result.effects.heldout_error_base_fit;
   refit.heldout_error_refit = result.effects.heldout_error_refit;
+  refit.heldout_error_base_fit_selected_model = result.effects.heldout_error_base_fit_selected_model;
   result.verdicts = judgeChannels(evidence, refit, options.verdict);
 }
 

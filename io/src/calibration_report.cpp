@@ -293,7 +293,9 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
     extra["effects_refit"] = {{"adopted", result.effects.refit_adopted},
                               {"rejected_reason", result.effects.refit_rejected_reason},
                               {"heldout_error_base_fit", result.effects.heldout_error_base_fit},
-                              {"heldout_error_refit", result.effects.heldout_error_refit}};
+                              {"heldout_error_refit", result.effects.heldout_error_refit},
+                              {"heldout_error_base_fit_selected_model",
+                               result.effects.heldout_error_base_fit_selected_model}};
     if (!result.effects.refit_adopted)
       report.warnings.push_back("effects: the extended model's refit was rejected (" +
                                 result.effects.refit_rejected_reason + "); the base fit's phi is reported");

@@ -84,6 +84,7 @@ struct RefitEvidence {
   bool adopted = false;
   std::string rejected_reason;
   double heldout_error_base_fit = 0, heldout_error_refit = 0;
+  double heldout_error_base_fit_selected_model = 0;  // the base φ under the refit's model (0: not compared)
 };
 
 // What one channel's verdict is judged on.

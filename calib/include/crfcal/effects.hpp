@@ -134,12 +134,15 @@ struct EffectReport {
   int samples = 0;                               // residual samples per channel
   double base_error = 0;                         // held-out Σe² / n of the base model (intensity units²)
   // The refit guard (effect_refit_guard.cpp): a refit's φ replaces the base fit's only when it is physically
-  // plausible and explains the held-back pixels at least as well as the base fit (each φ under its own model).
+  // plausible, explains the held-back pixels at least as well as the base fit (each φ under its own model), and
+  // at least as well as the base fit's φ does under the same extended model (the refitted φ, not only the effect,
+  // must explain them).
   bool refit_tried = false;                      // a detected effect asked for a refit and the refit succeeded
   bool refit_adopted = false;                    // the refit's φ is reported (fits non-empty)
   std::string refit_rejected_reason;             // why the base fit was kept (empty when adopted or not tried)
   double heldout_error_base_fit = 0;             // held-out Σe² / n: base φ and r under the base model
   double heldout_error_refit = 0;                // held-out Σe² / n: refitted φ and r under the selected model
+  double heldout_error_base_fit_selected_model = 0;  // held-out Σe² / n: base φ and r under the selected model
   std::map<std::string, CrfFitResult> rejected_fits;  // a rejected refit's φ per channel (for comparison)
   double seconds = 0;
   std::vector<std::string> detected() const;
