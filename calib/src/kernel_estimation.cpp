@@ -129,8 +129,9 @@ Direction selectEquations(const cv::Mat& s, const cv::Mat& b, const cv::Mat& val
 }
 
 // Exact normal equations over the selected pixels, restricted to the offsets in `offsets` (dy, dx relative to the
-// kernel centre): M = Aᵀ A, c = Aᵀ y with A(p, j) = X(p − d_j). Built in blocks of rows (single-precision GEMM per
-// block, the image data carry far less precision; the blocks are summed in double), in parallel: one contiguous run
+// kernel centre): M = Aᵀ A, c = Aᵀ y with A(p, j) = X(p − d_j). Built in blocks of rows (a single-precision Gram
+// product per block, AVX2 + FMA where the CPU has it, gram_products.hpp; the image data carry far less precision;
+// the blocks are summed in double), in parallel: one contiguous run
 // of blocks per thread, each summed in block order, the runs added in run order. (Adding each worker's sum as it
 // finished made the result depend on which finished first: two runs of one calibration differed by ~1e-10.)
 void accumulate(const Direction& d, const std::vector<cv::Point>& offsets, NormalEquations& eq) {
