@@ -35,13 +35,17 @@ namespace crfcal::effect {
 
 namespace {
 
-// Held-out Σe² / n of the given φ and r under `spec`, φ held as given (no EMoR re-fit: the curve itself is judged).
-double heldoutError(const EffectSearch& search, const std::vector<Curve>& curves, const std::vector<double>& ratios,
-                    const Spec& spec) {
+// The residual problem around the given φ and r, φ held as given (no EMoR re-fit: the curve itself is judged).
+Problem phiAsGivenProblem(const EffectSearch& search, const std::vector<Curve>& curves,
+                          const std::vector<double>& ratios) {
   EffectOptions phi_as_given = search.options;
   phi_as_given.phi_terms = 0;
-  const Problem problem(collect(search.p, curves, ratios, search.K, search.layout, phi_as_given), search.blocks,
-                        search.fine_blocks, search.options.min_derivative);
+  return Problem(collect(search.p, curves, ratios, search.K, search.layout, phi_as_given), search.blocks,
+                 search.fine_blocks, search.options.min_derivative);
+}
+
+// Held-out Σe² / n of that problem under `spec`.
+double heldoutError(const Problem& problem, const Spec& spec) {
   const Evaluation ev = problem.evaluate(spec);
   return ev.count > 0 ? ev.total / static_cast<double>(ev.count) : std::numeric_limits<double>::infinity();
 }
@@ -98,8 +102,9 @@ void guardRefit(EffectSearch& search) {
     refit_curves.push_back(makeCurve(report.fits.at(name).inverse_crf));
     refit_ratios.push_back(report.fits.at(name).ratio);
   }
-  report.heldout_error_base_fit = heldoutError(search, base_curves, base_ratios, Spec{});
-  report.heldout_error_refit = heldoutError(search, refit_curves, refit_ratios, search.current);
+  const Problem base_problem = phiAsGivenProblem(search, base_curves, base_ratios);
+  report.heldout_error_base_fit = heldoutError(base_problem, Spec{});
+  report.heldout_error_refit = heldoutError(phiAsGivenProblem(search, refit_curves, refit_ratios), search.current);
   std::string reason = implausibility(search);
   // A spatially varying blur's refit is fitted per tile with the first-order kernel, which the residual problem
   // (one kernel) cannot hold: judged under the global kernel it would be judged under a model it was not fitted
@@ -109,7 +114,7 @@ void guardRefit(EffectSearch& search) {
   if (reason.empty() && own_model_comparable && !(report.heldout_error_refit <= report.heldout_error_base_fit))
     reason = "its phi explains the held-back pixels worse than the base fit";
   if (reason.empty() && own_model_comparable) {
-    report.heldout_error_base_fit_selected_model = heldoutError(search, base_curves, base_ratios, search.current);
+    report.heldout_error_base_fit_selected_model = heldoutError(base_problem, search.current);
     if (!(report.heldout_error_refit <= report.heldout_error_base_fit_selected_model))
       reason = "under the same extended model the base fit's phi explains the held-back pixels better than the "
                "refitted phi: the effect, not a new phi, explains the misfit";
