@@ -172,6 +172,31 @@ TEST(CrfFit, SaturatedPixelsNeverEnterTheEnergy) {
   }
 }
 
+// A black pixel of I whose neighbourhood is not black (noise that reached black, a JPEG's ringing) stands for an
+// irradiance below φ(½ step), which is what level 0 means: it stays data, and its neighbours with it. Only regions whose
+// local median is black are censored. Dropping every black pixel's support instead selects pixels by I's noise.
+TEST(CrfFit, IsolatedBlackPixelsOfTheSharpShotStayInTheFitAndBlackRegionsDoNot) {
+  cv::Mat latent = 0.05 + 0.9 * test::levinImage(2);
+  latent(cv::Rect(60, 60, 40, 40)).setTo(0.0);  // a black region: its support must be censored
+  const cv::Mat kernel = test::levinKernel(1);
+  const SimulationResult pair = simulatePair(latent, GammaModel{2.2}, kernel);
+  cv::Mat sharp_with_black = pair.sharp.clone();
+  int isolated = 0;
+  for (int y = 130; y < sharp_with_black.rows - 20; y += 9)
+    for (int x = 20; x < sharp_with_black.cols - 20; x += 9, ++isolated) sharp_with_black.at<double>(y, x) = 0.0;
+  ASSERT_GT(isolated, 100);
+  CrfFitOptions options;
+  options.noise_sigma = 0;  // a clean I: the white end keeps its per-pixel test
+  const CrfFitResult clean = fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
+  const CrfFitResult dotted = fitInverseCrf(sharp_with_black, pair.blurred, kernel, options);
+  EXPECT_EQ(dotted.pixels.saturated, clean.pixels.saturated) << clean.summary() << "\n" << dotted.summary();
+  cv::Mat black_support = cv::Mat::zeros(latent.size(), CV_8U);
+  black_support(cv::Rect(62, 62, 36, 36)).setTo(255);  // where the 5×5 median is black
+  cv::dilate(black_support, black_support, cv::getStructuringElement(cv::MORPH_RECT, kernel.size()));
+  EXPECT_EQ(cv::countNonZero(black_support & dotted.pixels.used_mask), 0);
+  EXPECT_GT(clean.pixels.saturated, 40 * 40);
+}
+
 TEST(CrfFit, NeverReturnsAnInvalidCurve) {
   // Unrelated images: nothing fits, but whatever is returned must be a valid φ.
   const cv::Mat sharp = randomImage({96, 96}, 11), blurred = randomImage({96, 96}, 12);
