@@ -69,6 +69,7 @@ struct PairsArgs {
   bool unweighted_irradiance_kernel = false;
   std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   double learned_prior_weight = PairCalibrationOptions{}.fit.learned_prior_weight;  // --shoulder learned
+  std::string black_end = PairCalibrationOptions{}.fit.experimental.black_per_pixel_when_clean ? "per-pixel" : "median";
   bool pairs_only = false;
   int band_replicates = PairCalibrationOptions{}.band.replicates;  // 0: no band (and no band table)
   // r of the band's refits when r came from the evidence: "combined" (each half combines its r with EXIF, the
@@ -302,6 +303,7 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
   options.ratio_evidence.enabled = args.ratio_evidence == "on";
   options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
+  options.fit.experimental.black_per_pixel_when_clean = args.black_end == "per-pixel";
   options.fit.learned_prior_weight = args.learned_prior_weight;
   options.irradiance_kernel_lambda = args.irradiance_kernel_lambda;
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
@@ -714,6 +716,12 @@ const BenchRegistration registration(
                          "samples/camera_curves cameras except each case's own: leave one camera out)")
           ->capture_default_str()
           ->check(CLI::IsMember({"rising-free", "mean-camera", "learned"}));
+      command.add_option("--black-end", args->black_end,
+                         "Black pixels of the sharp shot censored: median (where its 5x5 median is black, the default) or "
+                         "per-pixel (every black pixel when its noise estimate is below one level: the rule before "
+                         "stop 37; docs/RESULTS.md#black-end)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"median", "per-pixel"}));
       command.add_flag("--always-fit-ratio", args->always_fit_ratio, "Fit r even when a sub-pixel blur leaves it undetermined, as calibrate --always-fit-ratio");
       command.add_option("--ratio-evidence", args->ratio_evidence,
                          "on: the images' r combined with EXIF by their precisions (as calibrate); off: the images alone")

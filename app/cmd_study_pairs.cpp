@@ -1,6 +1,7 @@
 // crfcal study pairs: what the seed's simulation assumes that the real phone pairs (vivo X6S, ../shared/data/pairs)
 // contradict, one row per candidate cause (issue 17, item 2): the exponent ambiguity, the sharp shot's noise
-// reduction, a tone curve that differs between the shots, sharpening halos, 4:2:0 chroma, a multi-frame long shot.
+// reduction, a tone curve that differs between the shots, sharpening halos, 4:2:0 chroma, a multi-frame long shot,
+// the sharp shot's noise reaching black under its noise estimate.
 // Each cause is supported or ruled out by a number measured on every pair; where crfcal has an extended model or a
 // decision rule its gain on the real pairs is measured here and its gain on the semi-real bench is quoted with the
 // command that prints it (docs/RESULTS.md, "Studies on measured data").
@@ -69,6 +70,7 @@ struct PairMeasurement {
   PairCalibrationResult images;    // r from the images alone (--ratio-evidence off)
   PairCalibrationResult evidence;  // r from all the evidence (the default)
   PairCalibrationResult chroma;    // the default + the chroma model (`--chroma-model auto`)
+  PairCalibrationResult black_per_pixel;  // the default with the black end's rule before stop 37 (`--black-end per-pixel`)
   BracketCalibrationResult bracket;  // noisy + g_truth: blur-free reference
   std::map<std::string, std::vector<double>> bracket_curve;               // per channel "R", "G", "B"
   std::map<std::string, std::pair<double, double>> bracket_range;         // their covered ranges
@@ -83,6 +85,8 @@ struct PairMeasurement {
   KernelShape kernel;
   std::optional<KernelShape> truth_kernel;  // the kernel g_truth → blurred (a brighter sharp shot; effects, evidence off)
   std::string truth_kernel_failure;         // why there is none (the pipeline's reason)
+  int black_pixels = 0;              // G of noisy at level 0
+  double isolated_black_share = 0;   // … of those, the share whose 5×5 median is not black: noise that reached black
 };
 
 double imagesRatio(const PairCalibrationResult& r) {
@@ -101,8 +105,10 @@ std::string join(const std::vector<PairMeasurement>& pairs, const std::function<
   return s;
 }
 
-PairCalibrationResult calibrate(const io::LoadedPair& loaded, double exif_ratio, bool evidence, bool chroma_model = false) {
+PairCalibrationResult calibrate(const io::LoadedPair& loaded, double exif_ratio, bool evidence, bool chroma_model = false,
+                                bool black_per_pixel = false) {
   PairCalibrationOptions options;
+  options.fit.experimental.black_per_pixel_when_clean = black_per_pixel;
   options.fit.nominal_ratio = exif_ratio;
   options.band.replicates = 0;  // the band does not change the curves; the study does not need it
   options.ratio_evidence.enabled = evidence;
@@ -170,6 +176,12 @@ void measureImages(PairMeasurement& m) {
   m.edge_truth = measureEdgeProfile(truth);
   m.edge_blurred = measureEdgeProfile(blurred);
   m.kernel = describeKernelShape(m.evidence.kernel.kernel);
+  const cv::Mat black = noisy <= 0.5 / 255;
+  cv::Mat noisy32, median;
+  noisy.convertTo(noisy32, CV_32F);
+  cv::medianBlur(noisy32, median, 5);
+  m.black_pixels = cv::countNonZero(black);
+  m.isolated_black_share = m.black_pixels ? double(cv::countNonZero(black & (median > 0.5 / 255))) / m.black_pixels : 0;
 }
 
 PairMeasurement measurePair(const fs::path& dir, const std::string& id, const std::map<std::string, io::ExifCsvRow>& exif,
@@ -193,6 +205,8 @@ PairMeasurement measurePair(const fs::path& dir, const std::string& id, const st
   m.evidence = calibrate(loaded, m.exif_ratio, true);
   progress.update(0.7, "pair " + id + ": chroma model");
   m.chroma = calibrate(loaded, m.exif_ratio, true, true);
+  progress.update(0.8, "pair " + id + ": black end per pixel");
+  m.black_per_pixel = calibrate(loaded, m.exif_ratio, true, false, true);
   progress.update(0.85, "pair " + id + ": kernel g_truth -> blurred");
   measureTruthKernel(m);
   progress.update(0.9, "pair " + id + ": bracket, noise, edges");
@@ -429,6 +443,46 @@ SummaryRow multiFrameRow(const std::vector<PairMeasurement>& pairs) {
   return r;
 }
 
+// The noise estimate below one 8-bit level while at least this share of the sharp shot's black pixels lie outside
+// black regions (their 5×5 median is not black): its noise reaches black where σ̂ says it does not.
+constexpr double kIsolatedBlackShare = 0.10;
+
+SummaryRow blackEndRow(const std::vector<PairMeasurement>& pairs) {
+  int supported = 0;
+  std::vector<std::vector<double>> per_pixel, median;
+  std::vector<std::pair<double, double>> ranges;
+  std::string vs;
+  for (const auto& p : pairs) {
+    supported += p.evidence.fits.at("G").noise_sigma * 255 <= 1.0 && p.isolated_black_share >= kIsolatedBlackShare;
+    per_pixel.push_back(greenOf(p.black_per_pixel));
+    median.push_back(greenOf(p.evidence));
+    ranges.push_back(greenRange(p.black_per_pixel));
+    ranges.push_back(greenRange(p.evidence));
+    const auto common = commonRange({greenRange(p.black_per_pixel), greenRange(p.evidence), p.bracket_range.at("G")});
+    vs += (vs.empty() ? "" : "; ") + p.id + ": " + fmt(curveShapeSpread({greenOf(p.black_per_pixel), p.bracket_curve.at("G")}, common), 3) +
+          " -> " + fmt(curveShapeSpread({greenOf(p.evidence), p.bracket_curve.at("G")}, common), 3);
+  }
+  const auto common = commonRange(ranges);
+  SummaryRow r;
+  r.assumption = "the noise estimate of the sharp shot tells whether its noise reaches black (below one level, every "
+                 "black pixel is taken as clipped signal and its kernel support dropped)";
+  r.misfit = "G noise estimate of noisy [levels], its black pixels, the share of them outside black regions (5x5 median "
+             "not black): " + join(pairs, [](const PairMeasurement& p) {
+               return fmt(p.evidence.fits.at("G").noise_sigma * 255, 2) + ", " + std::to_string(p.black_pixels) + ", " +
+                      fmt(100 * p.isolated_black_share, 1) + " %";
+             });
+  r.cause = "noise that reaches black under a noise estimate that a JPEG's quantisation lowered (the dark side of the "
+            "edges dropped): " + verdictOn(supported, pairs.size(), "not supported") + " (estimate <= 1 level and >= " +
+            fmt(100 * kIsolatedBlackShare, 0) + " % of the black pixels outside black regions)";
+  r.extended = "decision rule: black censored only where the sharp shot's 5x5 median is black, whatever its noise estimate "
+               "(calib/src/crf_preparation.cpp, the default; `bench pairs --black-end per-pixel` is the rule before)";
+  r.gain = "pair G vs its bracket in shape, per-pixel -> median: " + vs + "; the pairs' G shape spread over x " + range(common) +
+           ": " + fmt(curveShapeSpread(per_pixel, common), 3) + " -> " + fmt(curveShapeSpread(median, common), 3) +
+           ". Semi-real (`crfcal bench pairs --ratio 4|8 [--black-end per-pixel]`, RESULTS 'black end'): r within 5 % "
+           "23 -> 27 / 21 -> 24 of 27; r = 1, 2 identical";
+  return r;
+}
+
 void detailRows(const PairMeasurement& p, StudyTable& table) {
   auto row = [&](const std::string& cause, const std::string& quantity, const std::string& value, const std::string& note) {
     table.rows.push_back({p.id, cause, quantity, value, note});
@@ -466,6 +520,11 @@ void detailRows(const PairMeasurement& p, StudyTable& table) {
     else row("f", "kernel " + name + ": components / largest mass / support", std::to_string(k->components) + " / " +
         fmt(k->largest_mass, 2) + " / " + std::to_string(k->support), "RMS radius " + fmt(k->rms_radius, 2) +
         " px, elongation " + fmt(k->elongation, 2));
+  row("g", "G noise estimate of noisy [levels]", fmt(p.evidence.fits.at("G").noise_sigma * 255, 3), "below 1: taken as clean before stop 37");
+  row("g", "G black pixels of noisy / share outside black regions", std::to_string(p.black_pixels) + " / " +
+      fmt(100 * p.isolated_black_share, 1) + " %", "5x5 median not black");
+  row("g", "G pixels used per-pixel / median black test", std::to_string(p.black_per_pixel.fits.at("G").pixels.used) + " / " +
+      std::to_string(p.evidence.fits.at("G").pixels.used), "each with its own kernel rounds");
 }
 
 nlohmann::json kernelJson(const KernelShape& k) {
@@ -492,6 +551,10 @@ nlohmann::json pairJson(const PairMeasurement& p) {
           {"bracket_self_spread", p.bracket_self_spread},
           {"edge_width_smoothed_imitation", p.edge_control_smoothed.width},
           {"kernel", kernelJson(p.kernel)},
+          {"black_end", {{"noise_sigma_levels", p.evidence.fits.at("G").noise_sigma * 255},
+                         {"pixels_used_per_pixel", p.black_per_pixel.fits.at("G").pixels.used},
+                         {"pixels_used_median", p.evidence.fits.at("G").pixels.used},
+                         {"black_pixels", p.black_pixels}, {"isolated_black_share", p.isolated_black_share}}},
           {"kernel_g_truth", p.truth_kernel ? kernelJson(*p.truth_kernel) : nlohmann::json(p.truth_kernel_failure)}};
 }
 
@@ -518,7 +581,7 @@ int runPairs(const StudyArgs& args) {
   table.header = {"pair", "row", "quantity", "value", "note"};
   const ShapeSpreads spreads = shapeSpreads(pairs);
   table.summary = {ambiguityRow(pairs, spreads), noiseRow(pairs), toneRow(pairs, spreads),
-                   haloRow(pairs),         chromaRow(pairs), multiFrameRow(pairs)};
+                   haloRow(pairs),         chromaRow(pairs), multiFrameRow(pairs), blackEndRow(pairs)};
   for (const auto& p : pairs) {
     detailRows(p, table);
     table.extra["pairs"][p.id] = pairJson(p);

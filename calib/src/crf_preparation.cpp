@@ -79,7 +79,8 @@ cv::Mat saturationMask(const Prepared& prep, const cv::Mat& interior, const CrfF
   cv::Mat sharp32, sharp_median;
   prep.sharp_unit.convertTo(sharp32, CV_32F);
   cv::medianBlur(sharp32, sharp_median, 5);
-  bad |= sharp_median <= options.saturation_low;
+  const bool black_per_pixel = options.experimental.black_per_pixel_when_clean && !noisy;
+  bad |= (black_per_pixel ? prep.sharp_unit : sharp_median) <= options.saturation_low;
   bad |= (noisy ? sharp_median : prep.sharp_unit) >= options.saturation_high;
   bad = dilateBySupport(bad, kernel);
   bad &= interior;

@@ -195,6 +195,12 @@ struct CrfFitOptions {
     // power law at r = 1 worse. Real shoulders vary too much (local exponent up to 4.5–19) for the mean one to be a
     // safe default.
     bool shoulder_follows_emor_mean = false;
+    // Which black pixels of I are censored (their kernel support dropped). false (default): where I's 5×5 median is
+    // black, whatever the noise estimate (a black pixel elsewhere is data: level 0 enters as φ = 0). true: the rule
+    // before stop 37 — every black pixel when σ̂ is below one 8-bit level, which a JPEG's quantised noise reaches
+    // while the noise itself still reaches black (docs/RESULTS.md#black-end). For ablations (`bench pairs
+    // --black-end per-pixel`, `study pairs`).
+    bool black_per_pixel_when_clean = false;
   } experimental;
 
   // The seed's method as published: Eq. 22 with Γ weights, GGCM n = 4, Nelder–Mead, no noise handling.
