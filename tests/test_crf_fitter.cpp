@@ -172,9 +172,9 @@ TEST(CrfFit, SaturatedPixelsNeverEnterTheEnergy) {
   }
 }
 
-// A black pixel of I whose neighbourhood is not black (noise that reached black, a JPEG's ringing) stands for an
-// irradiance below φ(½ step), which is what level 0 means: it stays data, and its neighbours with it. Only regions whose
-// local median is black are censored. Dropping every black pixel's support instead selects pixels by I's noise.
+// A black pixel of I whose neighbourhood is not black (noise that reached black, a JPEG's ringing) hides at most φ of
+// the noise's reach above black, where φ is flat: it stays data, and its neighbours with it. Only regions whose local
+// median is black are censored. Dropping every black pixel's support instead drops the dark side of those edges.
 TEST(CrfFit, IsolatedBlackPixelsOfTheSharpShotStayInTheFitAndBlackRegionsDoNot) {
   cv::Mat latent = 0.05 + 0.9 * test::levinImage(2);
   latent(cv::Rect(60, 60, 40, 40)).setTo(0.0);  // a black region: its support must be censored
