@@ -54,6 +54,10 @@ struct PairsArgs {
   double shift = 4.3;
   double rotation = 0.4;
   int quality = 95;
+  // One part of the simulation changed at a time (docs/RESULTS.md#black-end): the sharp shot's own JPEG quality (0:
+  // --quality) and, in the real regime, a factor on its noise variance (0: noise-free).
+  int sharp_quality = 0;
+  double sharp_noise_scale = 1;
   std::string jpeg_sampling = "4:2:0";
   std::string chroma_model = "off";     // as calibrate --chroma-model  // chroma sampling of both shots (4:2:0: OpenCV's writer, as before)
   int max_side = 800;
@@ -400,10 +404,10 @@ struct PairsRun {
   }
 
   // A shot as JPEG: 4:2:0 through OpenCV (the benches' tables were measured with it), other samplings through libjpeg.
-  void writeShot(const fs::path& path, const cv::Mat& shot) const {
+  void writeShot(const fs::path& path, const cv::Mat& shot, int quality) const {
     const io::JpegSampling sampling = io::jpegSamplingFromString(args.jpeg_sampling);
-    if (sampling == io::JpegSampling::s420) io::writeJpeg(path, shot, args.quality);
-    else io::writeJpegSampled(path, shot, args.quality, sampling);
+    if (sampling == io::JpegSampling::s420) io::writeJpeg(path, shot, quality);
+    else io::writeJpegSampled(path, shot, quality, sampling);
   }
 
   // The simulated handheld pair of a case, written with its EXIF and truth.json into the case's directory.
@@ -422,12 +426,16 @@ struct PairsRun {
       exposure = realExposure(*noise_camera, args.blurred_iso, c.ratio);
       ho.normally_exposed = HandheldPairOptions::NormallyExposed::Blurred;
       ho.sharp_noise = exposure->noise_sharp;
+      for (PoissonGaussian* channel : {&ho.sharp_noise->red, &ho.sharp_noise->green, &ho.sharp_noise->blue}) {
+        channel->a *= args.sharp_noise_scale;
+        channel->b *= args.sharp_noise_scale;
+      }
       ho.blurred_noise = exposure->noise_blurred;
     }
     const HandheldPair pair = makeHandheldPair(photo, c.truth, c.kernel, ho);
     fs::create_directories(dir);
-    writeShot(dir / "sharp.jpg", pair.sharp);
-    writeShot(dir / "blurred.jpg", pair.blurred);
+    writeShot(dir / "sharp.jpg", pair.sharp, args.sharp_quality > 0 ? args.sharp_quality : args.quality);
+    writeShot(dir / "blurred.jpg", pair.blurred, args.quality);
     ExifExposure es, eb;
     es.make = eb.make = "crfcal";
     es.model = eb.model = "semi-real handheld";
@@ -690,6 +698,14 @@ const BenchRegistration registration(
       command.add_option("--rotation", args->rotation, "Handheld rotation, degrees (sign alternates per case)")
           ->capture_default_str();
       command.add_option("--quality", args->quality, "JPEG quality")->capture_default_str()->check(CLI::Range(50, 100));
+      command.add_option("--sharp-quality", args->sharp_quality,
+                         "JPEG quality of the sharp shot alone (0: --quality), to change one part of the simulation at a time")
+          ->capture_default_str()
+          ->check(CLI::Range(0, 100));
+      command.add_option("--sharp-noise-scale", args->sharp_noise_scale,
+                         "Real regime: factor on the sharp shot's noise variance (0: noise-free; 1: its ISO's measured noise)")
+          ->capture_default_str()
+          ->check(CLI::NonNegativeNumber);
       command.add_option("--jpeg-sampling", args->jpeg_sampling,
                          "Chroma sampling of both JPEG shots: 4:2:0 (OpenCV's writer, as cameras), 4:2:2 (many "
                          "DSLRs) or 4:4:4 (libjpeg)")
@@ -717,9 +733,9 @@ const BenchRegistration registration(
           ->capture_default_str()
           ->check(CLI::IsMember({"rising-free", "mean-camera", "learned"}));
       command.add_option("--black-end", args->black_end,
-                         "Black pixels of the sharp shot censored: median (where its 5x5 median is black, the default) or "
-                         "per-pixel (every black pixel when its noise estimate is below one level: the rule before "
-                         "stop 37; docs/RESULTS.md#black-end)")
+                         "Black pixels of the sharp shot censored: median (every one of a clean shot, only black regions "
+                         "where its noise reaches black at full or half resolution: the default) or per-pixel (the noise "
+                         "read at full resolution only: the rule before stop 37; docs/RESULTS.md#black-end)")
           ->capture_default_str()
           ->check(CLI::IsMember({"median", "per-pixel"}));
       command.add_flag("--always-fit-ratio", args->always_fit_ratio, "Fit r even when a sub-pixel blur leaves it undetermined, as calibrate --always-fit-ratio");

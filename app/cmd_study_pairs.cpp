@@ -32,6 +32,7 @@
 #include "crfcal/io/jpeg_info.hpp"
 #include "crfcal/io/pair_input.hpp"
 #include "crfcal/kernel_shape.hpp"
+#include "crfcal/noise_estimation.hpp"
 #include "crfcal/noise_law_comparison.hpp"
 #include "crfcal/pair_calibration.hpp"
 #include "crfcal/response_curve.hpp"
@@ -85,6 +86,7 @@ struct PairMeasurement {
   KernelShape kernel;
   std::optional<KernelShape> truth_kernel;  // the kernel g_truth → blurred (a brighter sharp shot; effects, evidence off)
   std::string truth_kernel_failure;         // why there is none (the pipeline's reason)
+  double noise_sigma_full = 0, noise_sigma_half = 0;  // G of noisy: the noise estimate at full and at half resolution
   int black_pixels = 0;              // G of noisy at level 0
   double isolated_black_share = 0;   // … of those, the share whose 5×5 median is not black: noise that reached black
 };
@@ -181,6 +183,8 @@ void measureImages(PairMeasurement& m) {
   noisy.convertTo(noisy32, CV_32F);
   cv::medianBlur(noisy32, median, 5);
   m.black_pixels = cv::countNonZero(black);
+  m.noise_sigma_full = estimateNoiseSigma(noisy).sigma;
+  m.noise_sigma_half = estimateNoiseSigmaAtHalfResolution(noisy).sigma;
   m.isolated_black_share = m.black_pixels ? double(cv::countNonZero(black & (median > 0.5 / 255))) / m.black_pixels : 0;
 }
 
@@ -443,8 +447,9 @@ SummaryRow multiFrameRow(const std::vector<PairMeasurement>& pairs) {
   return r;
 }
 
-// The noise estimate below one 8-bit level while at least this share of the sharp shot's black pixels lie outside
-// black regions (their 5×5 median is not black): its noise reaches black where σ̂ says it does not.
+// The noise estimate below one 8-bit level at full resolution and above it at half resolution, while at least this
+// share of the sharp shot's black pixels lie outside black regions (their 5×5 median is not black): its noise reaches
+// black where the full-resolution σ̂ says it does not.
 constexpr double kIsolatedBlackShare = 0.10;
 
 SummaryRow blackEndRow(const std::vector<PairMeasurement>& pairs) {
@@ -453,7 +458,8 @@ SummaryRow blackEndRow(const std::vector<PairMeasurement>& pairs) {
   std::vector<std::pair<double, double>> ranges;
   std::string vs;
   for (const auto& p : pairs) {
-    supported += p.evidence.fits.at("G").noise_sigma * 255 <= 1.0 && p.isolated_black_share >= kIsolatedBlackShare;
+    supported += p.noise_sigma_full * 255 <= 1.0 && p.noise_sigma_half * 255 > 1.0 &&
+                 p.isolated_black_share >= kIsolatedBlackShare;
     per_pixel.push_back(greenOf(p.black_per_pixel));
     median.push_back(greenOf(p.evidence));
     ranges.push_back(greenRange(p.black_per_pixel));
@@ -466,16 +472,17 @@ SummaryRow blackEndRow(const std::vector<PairMeasurement>& pairs) {
   SummaryRow r;
   r.assumption = "the noise estimate of the sharp shot tells whether its noise reaches black (below one level, every "
                  "black pixel is taken as clipped signal and its kernel support dropped)";
-  r.misfit = "G noise estimate of noisy [levels], its black pixels, the share of them outside black regions (5x5 median "
-             "not black): " + join(pairs, [](const PairMeasurement& p) {
-               return fmt(p.evidence.fits.at("G").noise_sigma * 255, 2) + ", " + std::to_string(p.black_pixels) + ", " +
-                      fmt(100 * p.isolated_black_share, 1) + " %";
+  r.misfit = "G noise estimate of noisy at full / half resolution [levels], its black pixels, the share of them outside "
+             "black regions (5x5 median not black): " + join(pairs, [](const PairMeasurement& p) {
+               return fmt(p.noise_sigma_full * 255, 2) + " / " + fmt(p.noise_sigma_half * 255, 2) + ", " +
+                      std::to_string(p.black_pixels) + ", " + fmt(100 * p.isolated_black_share, 1) + " %";
              });
   r.cause = "noise that reaches black under a noise estimate that a JPEG's quantisation lowered (the dark side of the "
-            "edges dropped): " + verdictOn(supported, pairs.size(), "not supported") + " (estimate <= 1 level and >= " +
-            fmt(100 * kIsolatedBlackShare, 0) + " % of the black pixels outside black regions)";
-  r.extended = "decision rule: black censored only where the sharp shot's 5x5 median is black, whatever its noise estimate "
-               "(calib/src/crf_preparation.cpp, the default; `bench pairs --black-end per-pixel` is the rule before)";
+            "edges dropped): " + verdictOn(supported, pairs.size(), "not supported") + " (estimate <= 1 level at full resolution, "
+            "> 1 at half, and >= " + fmt(100 * kIsolatedBlackShare, 0) + " % of the black pixels outside black regions)";
+  r.extended = "decision rule: whether the noise reaches black also read at half resolution, where a JPEG leaves it; "
+               "then black censored only where the sharp shot's 5x5 median is black (calib/src/crf_preparation.cpp, the "
+               "default; `bench pairs --black-end per-pixel` is the rule before)";
   r.gain = "pair G vs its bracket in shape, per-pixel -> median: " + vs + "; the pairs' G shape spread over x " + range(common) +
            ": " + fmt(curveShapeSpread(per_pixel, common), 3) + " -> " + fmt(curveShapeSpread(median, common), 3) +
            ". Semi-real (`crfcal bench pairs --ratio 4|8 [--black-end per-pixel]`, RESULTS 'black end'): r within 5 % "
@@ -520,7 +527,8 @@ void detailRows(const PairMeasurement& p, StudyTable& table) {
     else row("f", "kernel " + name + ": components / largest mass / support", std::to_string(k->components) + " / " +
         fmt(k->largest_mass, 2) + " / " + std::to_string(k->support), "RMS radius " + fmt(k->rms_radius, 2) +
         " px, elongation " + fmt(k->elongation, 2));
-  row("g", "G noise estimate of noisy [levels]", fmt(p.evidence.fits.at("G").noise_sigma * 255, 3), "below 1: taken as clean before stop 37");
+  row("g", "G noise estimate of noisy, full / half resolution [levels]", fmt(p.noise_sigma_full * 255, 3) + " / " +
+      fmt(p.noise_sigma_half * 255, 3), "full below 1: taken as clean before stop 37");
   row("g", "G black pixels of noisy / share outside black regions", std::to_string(p.black_pixels) + " / " +
       fmt(100 * p.isolated_black_share, 1) + " %", "5x5 median not black");
   row("g", "G pixels used per-pixel / median black test", std::to_string(p.black_per_pixel.fits.at("G").pixels.used) + " / " +
@@ -551,7 +559,8 @@ nlohmann::json pairJson(const PairMeasurement& p) {
           {"bracket_self_spread", p.bracket_self_spread},
           {"edge_width_smoothed_imitation", p.edge_control_smoothed.width},
           {"kernel", kernelJson(p.kernel)},
-          {"black_end", {{"noise_sigma_levels", p.evidence.fits.at("G").noise_sigma * 255},
+          {"black_end", {{"noise_sigma_levels", p.noise_sigma_full * 255},
+                         {"noise_sigma_half_resolution_levels", p.noise_sigma_half * 255},
                          {"pixels_used_per_pixel", p.black_per_pixel.fits.at("G").pixels.used},
                          {"pixels_used_median", p.evidence.fits.at("G").pixels.used},
                          {"black_pixels", p.black_pixels}, {"isolated_black_share", p.isolated_black_share}}},

@@ -1,5 +1,6 @@
 // The dual-image CRF fitter (seed Sec. 4): level mixtures, noise estimation/debiasing, recovery of φ and r,
 // saturation handling, validity and rejection of unusable pairs.
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <string>
@@ -59,6 +60,19 @@ TEST(NoiseEstimation, RecoversSigmaOfGaussianNoise) {
     EXPECT_NEAR(estimate.sigma, sigma, 0.15 * sigma) << sigma;
     EXPECT_GT(estimate.samples, 1000);
   }
+}
+
+TEST(NoiseEstimation, HalfResolutionRecoversWhiteNoiseAndSeesLowPassedNoise) {
+  cv::Mat image(240, 320, CV_64F), noise(240, 320, CV_64F);
+  for (int y = 0; y < image.rows; ++y)
+    for (int x = 0; x < image.cols; ++x) image.at<double>(y, x) = 0.3 + 0.4 * x / image.cols;
+  cv::RNG rng(3);
+  rng.fill(noise, cv::RNG::NORMAL, 0.0, 0.01);
+  EXPECT_NEAR(estimateNoiseSigmaAtHalfResolution(image + noise).sigma, 0.01, 0.0015);
+  cv::GaussianBlur(noise, noise, cv::Size(0, 0), 1.0);  // the finest scale removed, as a JPEG does
+  const double full = estimateNoiseSigma(image + noise).sigma, half = estimateNoiseSigmaAtHalfResolution(image + noise).sigma;
+  EXPECT_GT(half, 2 * full);
+  EXPECT_THROW(estimateNoiseSigmaAtHalfResolution(cv::Mat(16, 16, CV_64F, cv::Scalar(0.5))), InvalidInput);
 }
 
 TEST(NoiseDebias, ExpectationOfDebiasedFunctionIsTheCleanFunction) {
@@ -172,33 +186,66 @@ TEST(CrfFit, SaturatedPixelsNeverEnterTheEnergy) {
   }
 }
 
-// A black pixel of I whose neighbourhood is not black (noise that reached black, a JPEG's ringing) hides at most φ of
-// the noise's reach above black, where φ is flat: it stays data, and its neighbours with it. Only regions whose local
-// median is black are censored. Dropping every black pixel's support instead drops the dark side of those edges.
-TEST(CrfFit, IsolatedBlackPixelsOfTheSharpShotStayInTheFitAndBlackRegionsDoNot) {
+// A black pixel of a noisy I whose neighbourhood is not black is noise that reached black: it hides at most φ of the
+// noise's reach above black, so it stays data, and its neighbours with it; only regions whose local median is black
+// are censored. A clean I's black pixels are clipped signal: each one's support is dropped.
+TEST(CrfFit, BlackPixelsDropTheirSupportInACleanSharpShotAndOnlyBlackRegionsDoInANoisyOne) {
   cv::Mat latent = 0.05 + 0.9 * test::levinImage(2);
-  latent(cv::Rect(60, 60, 40, 40)).setTo(0.0);  // a black region: its support must be censored
+  latent(cv::Rect(60, 60, 40, 40)).setTo(0.0);  // a black region: its support is censored either way
   const cv::Mat kernel = test::levinKernel(1);
   const SimulationResult pair = simulatePair(latent, GammaModel{2.2}, kernel);
-  cv::Mat sharp_with_black = pair.sharp.clone();
-  int isolated = 0;
-  for (int y = 130; y < sharp_with_black.rows - 20; y += 9)
-    for (int x = 20; x < sharp_with_black.cols - 20; x += 9, ++isolated) sharp_with_black.at<double>(y, x) = 0.0;
-  ASSERT_GT(isolated, 100);
-  CrfFitOptions options;
-  options.noise_sigma = 0;  // a clean I: the white end keeps its per-pixel test
-  const CrfFitResult clean = fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
-  const CrfFitResult dotted = fitInverseCrf(sharp_with_black, pair.blurred, kernel, options);
-  EXPECT_EQ(dotted.pixels.saturated, clean.pixels.saturated) << clean.summary() << "\n" << dotted.summary();
+  cv::Mat dotted_sharp = pair.sharp.clone();
+  int dots = 0;
+  for (int y = 130; y < dotted_sharp.rows - 20; y += 9)
+    for (int x = 20; x < dotted_sharp.cols - 20; x += 9, ++dots) dotted_sharp.at<double>(y, x) = 0.0;
+  ASSERT_GT(dots, 100);
   cv::Mat black_support = cv::Mat::zeros(latent.size(), CV_8U);
   black_support(cv::Rect(62, 62, 36, 36)).setTo(255);  // where the 5×5 median is black
   cv::dilate(black_support, black_support, cv::getStructuringElement(cv::MORPH_RECT, kernel.size()));
-  EXPECT_EQ(cv::countNonZero(black_support & dotted.pixels.used_mask), 0);
-  EXPECT_GT(clean.pixels.saturated, 40 * 40);
-  // The rule before stop 37 (kept for ablations): a clean-looking I drops the support of every black pixel.
+  CrfFitOptions options;
+  for (const double sigma : {0.0, 2.0 / 255}) {  // given: a clean I, then a noisy one (more than one level)
+    options.noise_sigma = sigma;
+    const CrfFitResult plain = fitInverseCrf(pair.sharp, pair.blurred, kernel, options);
+    const CrfFitResult dotted = fitInverseCrf(dotted_sharp, pair.blurred, kernel, options);
+    EXPECT_EQ(cv::countNonZero(black_support & dotted.pixels.used_mask), 0) << "sigma " << sigma;
+    EXPECT_GT(plain.pixels.saturated, 40 * 40);
+    if (sigma == 0) EXPECT_GT(dotted.pixels.saturated, plain.pixels.saturated + dots * 10) << dotted.summary();
+    else EXPECT_EQ(dotted.pixels.saturated, plain.pixels.saturated) << plain.summary() << "\n" << dotted.summary();
+  }
+}
+
+// The real regime's sharp shot after a JPEG: its noise reaches black, but the quantisation removed the high
+// frequencies the full-resolution estimate reads (emulated: noise low-passed by a 1 px Gaussian). The half-resolution
+// estimate still sees it, so the black pixels it makes stay data; the ablation (the rule before stop 37) drops their
+// supports, the dark side of the edges.
+TEST(CrfFit, NoiseHiddenFromTheFullResolutionEstimateStillKeepsItsBlackPixelsInTheFit) {
+  const cv::Mat kernel = test::levinKernel(3);
+  cv::Mat latent;
+  cv::pow(test::levinImage(3), 2.0, latent);  // dark regions near black
+  SimulationOptions sim;
+  sim.ratio = 8;
+  sim.bits = 16;
+  const SimulationResult pair = simulatePair(latent * (1.0 / 8), GammaModel{2.2}, kernel, sim);
+  cv::Mat noise(latent.size(), CV_64F);
+  cv::RNG rng(7);
+  rng.fill(noise, cv::RNG::NORMAL, 0.0, 1.0);
+  cv::GaussianBlur(noise, noise, cv::Size(0, 0), 1.0);
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(noise, mean, stddev);
+  cv::Mat sharp = pair.sharp_clean + noise * (3.0 / 255 / stddev[0]), blurred;
+  sharp.convertTo(sharp, CV_8U, 255.0);  // clipped at black and rounded, as a camera stores it
+  pair.blurred.convertTo(blurred, CV_8U, 255.0);
+  ASSERT_GT(cv::countNonZero(sharp == 0), 100);
+  const double full = estimateNoiseSigma(sharp).sigma, half = estimateNoiseSigmaAtHalfResolution(sharp).sigma;
+  EXPECT_LT(full * 255, 1.0);
+  EXPECT_GT(half * 255, 1.0);
+  CrfFitOptions options;
+  options.nominal_ratio = 8;
+  const CrfFitResult fit = fitInverseCrf(sharp, blurred, kernel, options);
   options.experimental.black_per_pixel_when_clean = true;
-  const CrfFitResult per_pixel = fitInverseCrf(sharp_with_black, pair.blurred, kernel, options);
-  EXPECT_GT(per_pixel.pixels.saturated, clean.pixels.saturated + isolated * 10) << per_pixel.summary();
+  const CrfFitResult ablation = fitInverseCrf(sharp, blurred, kernel, options);
+  EXPECT_LT(fit.noise_sigma * 255, 1.0);
+  EXPECT_GT(ablation.pixels.saturated, 4 * std::max(fit.pixels.saturated, 1000)) << fit.summary() << "\n" << ablation.summary();
 }
 
 TEST(CrfFit, NeverReturnsAnInvalidCurve) {

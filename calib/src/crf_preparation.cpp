@@ -60,16 +60,30 @@ cv::Mat dilateBySupport(const cv::Mat& marked, const cv::Mat& kernel) {
   return out;
 }
 
+// Whether I's noise reaches black, so that a black pixel there is noise, not clipped signal: σ̂ above one 8-bit level
+// at full resolution, or at half resolution (estimateNoiseSigmaAtHalfResolution: a JPEG hides the noise from the
+// full-resolution estimate). The ablation experimental.black_per_pixel_when_clean reads the full resolution only.
+// A given σ (noise_sigma, noise_sigma_per_level) is taken as it is.
+bool noiseReachesBlack(const Prepared& prep, bool noisy, const CrfFitOptions& options) {
+  if (noisy) return true;
+  const bool sigma_given = options.noise_sigma >= 0 || !options.noise_sigma_per_level.empty();
+  if (sigma_given || options.experimental.black_per_pixel_when_clean || prep.sharp_unit.rows < 18 ||
+      prep.sharp_unit.cols < 18)
+    return false;
+  return estimateNoiseSigmaAtHalfResolution(prep.sharp_unit).sigma * 255.0 > 1.0;
+}
+
 // Saturated or censored pixels of B or I inside the interior, dilated by the kernel's support.
 //
-// I's two ends differ. Black: level 0 enters the mixture as φ = 0, and the irradiance a black pixel hides is at most
-// φ of the noise's reach above black, small where φ is flat, so a black pixel is data; only regions whose 5×5 median
-// is black (the signal itself at the clip) are censored. Dropping the support of every black pixel instead drops the
-// dark side of every edge near which the noise reaches black, and whether it does cannot be read from the σ
-// estimate: a JPEG quantises away the high frequencies that estimate reads (measured on `bench pairs --ratio 8`: σ
-// 0.0019 estimated where the sharp shot's noise was 0.0086; the dropped supports raised r by 15–17 % on three pairs).
-// Kept dark pixels carry I's noise bias (Jensen), which the median test of a noisy I always had: with white noise
-// of 2 levels at black it lowers r (docs/RESULTS.md#black-end).
+// I's black end. A black pixel of a clean I is clipped signal, and at r = 8 the irradiance it hides is not small
+// through B's steep toe: its support is dropped (measured: a noise-free, JPEG-coded dark sharp shot gave r 0.85 × the
+// truth when black pixels were kept as data, 1.08 / 1.00 when dropped). Where I's noise reaches black, a black pixel
+// outside a black region (5×5 median) is noise; dropping its support would drop the dark side of every edge near
+// which the noise reaches black, so only black regions are censored there. Whether the noise reaches black is read
+// at full resolution and, since a JPEG quantises away the finest scale, at half resolution too (noiseReachesBlack;
+// measured on `bench pairs --ratio 8`: σ̂ 0.49 levels at full resolution, 1.61 at half, for a shot with 2.2 levels of
+// noise; reading the full resolution alone raised r by 15–17 % on three pairs; docs/RESULTS.md#black-end). Kept dark
+// pixels carry I's noise bias (Jensen), as a noisy I's always did.
 // White: an irradiance above φ(1) is unbounded, so a clean I drops every white pixel's support; a noisy I (σ above
 // one 8-bit level) clips at white by noise alone, and then only regions whose local median is white are saturated.
 cv::Mat saturationMask(const Prepared& prep, const cv::Mat& interior, const CrfFitOptions& options) {
@@ -79,8 +93,7 @@ cv::Mat saturationMask(const Prepared& prep, const cv::Mat& interior, const CrfF
   cv::Mat sharp32, sharp_median;
   prep.sharp_unit.convertTo(sharp32, CV_32F);
   cv::medianBlur(sharp32, sharp_median, 5);
-  const bool black_per_pixel = options.experimental.black_per_pixel_when_clean && !noisy;
-  bad |= (black_per_pixel ? prep.sharp_unit : sharp_median) <= options.saturation_low;
+  bad |= (noiseReachesBlack(prep, noisy, options) ? sharp_median : prep.sharp_unit) <= options.saturation_low;
   bad |= (noisy ? sharp_median : prep.sharp_unit) >= options.saturation_high;
   bad = dilateBySupport(bad, kernel);
   bad &= interior;

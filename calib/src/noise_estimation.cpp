@@ -56,6 +56,16 @@ NoiseEstimate estimateNoiseSigma(const cv::Mat& image, const NoiseEstimationOpti
   return est;
 }
 
+NoiseEstimate estimateNoiseSigmaAtHalfResolution(const cv::Mat& image, const NoiseEstimationOptions& options) {
+  const cv::Mat unit = toUnitGray(image);
+  if (unit.rows < 18 || unit.cols < 18) throw InvalidInput("noise estimation: image smaller than 18x18");
+  cv::Mat half;
+  cv::resize(unit, half, cv::Size(unit.cols / 2, unit.rows / 2), 0, 0, cv::INTER_AREA);
+  NoiseEstimate est = estimateNoiseSigma(half, options);
+  est.sigma *= 2;
+  return est;
+}
+
 NoiseProfile estimateNoiseProfile(const cv::Mat& image, int max_bins, const NoiseEstimationOptions& options) {
   options.check();
   if (max_bins < 1) throw InvalidInput("noise estimation: max_bins must be positive");

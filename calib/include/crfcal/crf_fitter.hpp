@@ -133,7 +133,7 @@ struct CrfFitOptions {
   std::shared_ptr<const LearnedCurvePrior> learned_prior;
   double learned_prior_weight = 1;
   double saturation_high = 254.5 / 255.0;  // B or I at/above: saturated (dilated by the kernel's support)
-  double saturation_low = 0.5 / 255.0;     // B, or I's 5×5 median, at/below: censored black (dilated likewise)
+  double saturation_low = 0.5 / 255.0;     // B or I at/below: censored black (dilated likewise; a noisy I: its 5×5 median)
   // moments: weight λ of the saturated pixels of B as censored observations (issue 19; crf_censored.hpp). φ → bφ
   // leaves Eq. 4 unchanged, so φ(1) = 1 is otherwise reached by extrapolation from the top of the data. Where B
   // clips, r · (φ(I) ⊗ K) ≥ φ(saturation_high): each clipped pixel on the rim of a clipped region adds the
@@ -195,11 +195,11 @@ struct CrfFitOptions {
     // power law at r = 1 worse. Real shoulders vary too much (local exponent up to 4.5–19) for the mean one to be a
     // safe default.
     bool shoulder_follows_emor_mean = false;
-    // Which black pixels of I are censored (their kernel support dropped). false (default): where I's 5×5 median is
-    // black, whatever the noise estimate (a black pixel elsewhere is data: level 0 enters as φ = 0). true: the rule
-    // before stop 37 — every black pixel when σ̂ is below one 8-bit level; a JPEG's quantisation lowers σ̂ below that
-    // while the noise still reaches black (docs/RESULTS.md#black-end). For ablations (`bench pairs --black-end
-    // per-pixel`, `study pairs`).
+    // Which black pixels of I are censored (their kernel support dropped). false (default): every black pixel of a
+    // clean I, only black regions (5×5 median) where I's noise reaches black — σ̂ above one 8-bit level at full or at
+    // half resolution (a JPEG hides the noise from the finest scale). true: the rule before stop 37, which read the
+    // full resolution only (docs/RESULTS.md#black-end). For ablations (`bench pairs --black-end per-pixel`, `study
+    // pairs`).
     bool black_per_pixel_when_clean = false;
   } experimental;
 
