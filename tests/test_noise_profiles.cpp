@@ -3,6 +3,7 @@
 #include <cmath>
 #include <fstream>
 #include <functional>
+#include <iterator>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -173,6 +174,37 @@ TEST(RealRegimeSimulation, BenchPairsWritesTheNominalRatioAndTheIsosInExifAndTru
   const cv::Mat sharp = cv::imread((dir / "out" / "case1" / "sharp.jpg").string());
   const cv::Mat blurred = cv::imread((dir / "out" / "case1" / "blurred.jpg").string());
   EXPECT_LT(cv::mean(sharp)[1] * 1.5, cv::mean(blurred)[1]);
+}
+
+// `--sharp-quality` and `--sharp-noise-scale` change the sharp shot alone (one part of the simulation at a time,
+// docs/RESULTS.md#black-end): the blurred shot stays byte for byte the same, the sharp one loses its noise.
+TEST(RealRegimeSimulation, SharpQualityAndNoiseScaleChangeTheSharpShotAlone) {
+  TempDir dir;
+  auto pairs = [&](const std::string& name, const std::string& extra) {
+    const auto result = run("'" + crfcalBinary().string() + "' bench pairs --pairs-only --regime real --ratio 8 " +
+                            "--image '" + (samples() / "effects" / "window.jpg").string() + "' --max-side 160 " +
+                            "--kernel levin:1 --crf gamma:2.2 --noise-profiles '" + excerpt().string() + "' " + extra +
+                            " -o '" + (dir / name).string() + "'");
+    EXPECT_EQ(result.exit_code, 0) << result.output;
+    return dir / name / "case1";
+  };
+  const auto as_simulated = pairs("a", ""), best_jpeg = pairs("b", "--sharp-quality 100"),
+             noise_free = pairs("c", "--sharp-quality 100 --sharp-noise-scale 0");
+  auto bytes = [](const std::filesystem::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  EXPECT_EQ(bytes(as_simulated / "blurred.jpg"), bytes(best_jpeg / "blurred.jpg"));
+  EXPECT_EQ(bytes(as_simulated / "blurred.jpg"), bytes(noise_free / "blurred.jpg"));
+  EXPECT_NE(bytes(as_simulated / "sharp.jpg"), bytes(best_jpeg / "sharp.jpg"));
+  // The same shot with and without its noise, both at quality 100: they differ by the noise, not on average.
+  cv::Mat noisy, clean, difference;
+  cv::imread((best_jpeg / "sharp.jpg").string(), cv::IMREAD_GRAYSCALE).convertTo(noisy, CV_64F);
+  cv::imread((noise_free / "sharp.jpg").string(), cv::IMREAD_GRAYSCALE).convertTo(clean, CV_64F);
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(noisy - clean, mean, stddev);
+  EXPECT_GT(stddev[0], 0.5);           // levels: ISO 800 noise of the bundled phone profile
+  EXPECT_LT(std::abs(mean[0]), 0.5);
 }
 
 TEST(RealRegimeSimulation, AutoRegimeKeepsRatiosUpToTwoInTheSharpNormalRegime) {
