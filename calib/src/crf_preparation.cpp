@@ -90,10 +90,14 @@ cv::Mat saturationMask(const Prepared& prep, const cv::Mat& interior, const CrfF
   const cv::Mat& kernel = prep.kernel;
   const bool noisy = prep.sigma * 255.0 > 1.0;  // more than one 8-bit level
   cv::Mat bad = (prep.blurred_unit >= options.saturation_high) | (prep.blurred_unit <= options.saturation_low);
-  cv::Mat sharp32, sharp_median;
-  prep.sharp_unit.convertTo(sharp32, CV_32F);
-  cv::medianBlur(sharp32, sharp_median, 5);
-  bad |= (noiseReachesBlack(prep, noisy, options) ? sharp_median : prep.sharp_unit) <= options.saturation_low;
+  const bool black_is_noise = noiseReachesBlack(prep, noisy, options);
+  cv::Mat sharp_median;
+  if (black_is_noise || noisy) {
+    cv::Mat sharp32;
+    prep.sharp_unit.convertTo(sharp32, CV_32F);
+    cv::medianBlur(sharp32, sharp_median, 5);
+  }
+  bad |= (black_is_noise ? sharp_median : prep.sharp_unit) <= options.saturation_low;
   bad |= (noisy ? sharp_median : prep.sharp_unit) >= options.saturation_high;
   bad = dilateBySupport(bad, kernel);
   bad &= interior;
