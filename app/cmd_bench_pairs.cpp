@@ -21,6 +21,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "bench_real_regime.hpp"
 #include "crfcal/curve_comparison.hpp"
 #include "option_checks.hpp"
 #include "crfcal/error.hpp"
@@ -102,33 +103,6 @@ std::vector<double> scaled(std::vector<double> values, double factor) {
 
 bool realRegime(const PairsArgs& args, double ratio) {
   return args.regime == "real" || (args.regime == "auto" && ratio > 2);
-}
-
-// Real regime: the camera's noise and the two shots' ISOs for a ratio r (blurred ISO · r for the sharp shot: r×
-// less light at r× the gain, e.g. ISO 100 at t and ISO 800 at t / 64 for r = 8).
-struct RealExposure {
-  double iso_blurred = 0, iso_sharp = 0;
-  SensorNoise noise_blurred, noise_sharp;
-};
-
-RealExposure realExposure(const io::CameraNoiseProfile& camera, double blurred_iso, double ratio) {
-  RealExposure e;
-  e.iso_blurred = blurred_iso > 0 ? blurred_iso : camera.minIso();
-  e.iso_sharp = e.iso_blurred * ratio;
-  e.noise_blurred = camera.atIso(e.iso_blurred);
-  e.noise_sharp = camera.atIso(e.iso_sharp);
-  return e;
-}
-
-// EXIF of a real-regime pair: the sharp shot at its ISO rounded as a camera writes it and a shutter time 1/n near
-// 1/4 s · ISO_B / (ISO_I · r); the blurred shot at ISO_B and the time that makes the EXIF ratio
-// ISO_B·t_B / (ISO_I·t_I) the truth × (1 + exif_error), as in the sharp-normal regime (EXIF stores the long time to
-// 1 ms: about 0.2 % of the ratio).
-void setRealExif(ExifExposure& sharp, ExifExposure& blurred, const RealExposure& e, double ratio, double exif_error) {
-  sharp.iso = std::round(e.iso_sharp);
-  sharp.exposure_time = 1.0 / std::max(1.0, std::round(*sharp.iso * ratio / (e.iso_blurred * 0.25)));
-  blurred.iso = e.iso_blurred;
-  blurred.exposure_time = ratio * (1 + exif_error) * *sharp.iso * *sharp.exposure_time / e.iso_blurred;
 }
 
 // Per-ratio summary of a run (the targets of issue 17 are stated per r).
@@ -423,13 +397,9 @@ struct PairsRun {
     ho.seed = static_cast<std::uint64_t>(c.index);
     std::optional<RealExposure> exposure;
     if (realRegime(args, c.ratio)) {
-      exposure = realExposure(*noise_camera, args.blurred_iso, c.ratio);
+      exposure = realExposure(*noise_camera, args.blurred_iso, c.ratio, args.sharp_noise_scale);
       ho.normally_exposed = HandheldPairOptions::NormallyExposed::Blurred;
       ho.sharp_noise = exposure->noise_sharp;
-      for (PoissonGaussian* channel : {&ho.sharp_noise->red, &ho.sharp_noise->green, &ho.sharp_noise->blue}) {
-        channel->a *= args.sharp_noise_scale;
-        channel->b *= args.sharp_noise_scale;
-      }
       ho.blurred_noise = exposure->noise_blurred;
     }
     const HandheldPair pair = makeHandheldPair(photo, c.truth, c.kernel, ho);
