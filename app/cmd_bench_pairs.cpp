@@ -75,6 +75,7 @@ struct PairsArgs {
   std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   double learned_prior_weight = PairCalibrationOptions{}.fit.learned_prior_weight;  // --shoulder learned
   std::string black_end = PairCalibrationOptions{}.fit.experimental.black_per_pixel_when_clean ? "per-pixel" : "median";
+  std::string warp_domain = HandheldPairOptions{}.warp_irradiance ? "irradiance" : "intensity";  // the blurred frame's
   bool pairs_only = false;
   int band_replicates = PairCalibrationOptions{}.band.replicates;  // 0: no band (and no band table)
   // r of the band's refits when r came from the evidence: "combined" (each half combines its r with EXIF, the
@@ -395,6 +396,7 @@ struct PairsRun {
     ho.shift_y = args.shift * std::sin(angle);
     ho.rotation_deg = c.index % 2 ? args.rotation : -args.rotation;
     ho.seed = static_cast<std::uint64_t>(c.index);
+    ho.warp_irradiance = args.warp_domain == "irradiance";
     std::optional<RealExposure> exposure;
     if (realRegime(args, c.ratio)) {
       exposure = realExposure(*noise_camera, args.blurred_iso, c.ratio, args.sharp_noise_scale);
@@ -708,6 +710,12 @@ const BenchRegistration registration(
                          "read at full resolution only: the rule before stop 37; docs/RESULTS.md#black-end)")
           ->capture_default_str()
           ->check(CLI::IsMember({"median", "per-pixel"}));
+      command.add_option("--warp-domain", args->warp_domain,
+                         "Where the blurred frame's handheld motion is applied: intensity (its 8-bit values after the "
+                         "response and clip, bilinear: the record) or irradiance (before the noise and the response: "
+                         "the hand moves before the sensor; docs/RESULTS.md#blurred-rim)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"intensity", "irradiance"}));
       command.add_flag("--always-fit-ratio", args->always_fit_ratio, "Fit r even when a sub-pixel blur leaves it undetermined, as calibrate --always-fit-ratio");
       command.add_option("--ratio-evidence", args->ratio_evidence,
                          "on: the images' r combined with EXIF by their precisions (as calibrate); off: the images alone")

@@ -1,5 +1,6 @@
 // darktable's camera noise profiles (io/noise_profiles.hpp) on the bundled excerpt, and the real-regime handheld
-// simulation (handheld_simulation.hpp): the sharp shot underexposed by r, each shot with the planted a·x + b noise.
+// simulation (handheld_simulation.hpp): the sharp shot underexposed by r, each shot with the planted a·x + b noise;
+// the blurred frame moved in the irradiance or the intensity domain.
 #include <cmath>
 #include <fstream>
 #include <functional>
@@ -205,6 +206,47 @@ TEST(RealRegimeSimulation, SharpQualityAndNoiseScaleChangeTheSharpShotAlone) {
   cv::meanStdDev(noisy - clean, mean, stddev);
   EXPECT_GT(stddev[0], 0.5);           // levels: ISO 800 noise of the bundled phone profile
   EXPECT_LT(std::abs(mean[0]), 0.5);
+}
+
+// The blurred frame's handheld motion in the irradiance domain (HandheldPairOptions::warp_irradiance) or on its
+// 8-bit intensities (the record): half a pixel across a dark | bright step, no noise, no blur. Away from the step
+// the two agree; on the step the intensity warp averages intensities, the irradiance warp averages irradiances and
+// then applies the (concave) response — 35 levels apart for gamma 2.2, equal for a linear response.
+TEST(HandheldSimulation, IrradianceWarpAveragesIrradiancesAcrossAStepAndTheIntensityWarpIntensities) {
+  cv::Mat photo(64, 64, CV_8UC1, cv::Scalar(40));
+  photo.colRange(32, 64).setTo(220);
+  const cv::Mat kernel = cv::Mat::ones(1, 1, CV_64F);
+  auto blurredRow = [&](double gamma, bool warp_irradiance) {
+    HandheldPairOptions options;
+    options.shift_x = 0.5;
+    options.shift_y = options.rotation_deg = 0;
+    options.noise_gain_sharp = options.noise_gain_blurred = options.read_noise = 0;
+    options.warp_irradiance = warp_irradiance;
+    const HandheldPair pair = makeHandheldPair(photo, GammaModel{gamma}, kernel, options);
+    cv::Mat row;
+    pair.blurred.row(32).convertTo(row, CV_64F, 1 / 255.0);
+    cv::Mat sharp_row;
+    pair.sharp.row(32).convertTo(sharp_row, CV_64F, 1 / 255.0);
+    return std::pair{row, sharp_row};
+  };
+  const double level = 1 / 255.0;
+  for (const double gamma : {2.2, 1.0}) {
+    const auto [by_intensity, sharp] = blurredRow(gamma, false);
+    const cv::Mat by_irradiance = blurredRow(gamma, true).first;
+    const double dark = sharp.at<double>(0, 10), bright = sharp.at<double>(0, 50);
+    EXPECT_NEAR(by_intensity.at<double>(0, 10), dark, level);
+    EXPECT_NEAR(by_irradiance.at<double>(0, 10), dark, level);
+    EXPECT_NEAR(by_intensity.at<double>(0, 50), bright, level);
+    EXPECT_NEAR(by_irradiance.at<double>(0, 50), bright, level);
+    // dst(x) = src(x − 0.5): column 32 mixes columns 31 (dark) and 32 (bright) half and half
+    const double mixed_irradiance = 0.5 * (std::pow(dark, gamma) + std::pow(bright, gamma));
+    EXPECT_NEAR(by_intensity.at<double>(0, 32), 0.5 * (dark + bright), 1.5 * level) << "gamma " << gamma;
+    EXPECT_NEAR(by_irradiance.at<double>(0, 32), std::pow(mixed_irradiance, 1 / gamma), 1.5 * level)
+        << "gamma " << gamma;
+    if (gamma > 1) {
+      EXPECT_GT(by_irradiance.at<double>(0, 32) - by_intensity.at<double>(0, 32), 30 * level);
+    }
+  }
 }
 
 TEST(RealRegimeSimulation, AutoRegimeKeepsRatiosUpToTwoInTheSharpNormalRegime) {

@@ -84,10 +84,16 @@ HandheldPair makeHandheldPair(const cv::Mat& photo, const ResponseModel& phi, co
                                               ? channelNoise(*options.blurred_noise, c, planes.size())
                                               : PoissonGaussian{options.noise_gain_blurred, options.read_noise};
     cv::Mat i = curve.forward(cv::max(cv::min(noisy(sharp_irr, sharp_noise), 1.0), 0.0));
-    cv::Mat b_irr = noisy(blurred_irr, blurred_noise);
-    cv::Mat b = curve.forward(cv::max(cv::min(b_irr, 1.0), 0.0));
     cv::Mat moved;
-    cv::warpAffine(b, moved, A, b.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    if (options.warp_irradiance) {
+      cv::Mat blurred_irr_moved;
+      cv::warpAffine(blurred_irr, blurred_irr_moved, A, blurred_irr.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+      moved = curve.forward(cv::max(cv::min(noisy(blurred_irr_moved, blurred_noise), 1.0), 0.0));
+    } else {
+      cv::Mat b_irr = noisy(blurred_irr, blurred_noise);
+      cv::Mat b = curve.forward(cv::max(cv::min(b_irr, 1.0), 0.0));
+      cv::warpAffine(b, moved, A, b.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    }
     i.convertTo(sharp[c], CV_8U, 255.0);
     moved.convertTo(blurred[c], CV_8U, 255.0);
   }

@@ -33,6 +33,11 @@ struct HandheldPairOptions {
   double read_noise = 1e-6;       // Gaussian part (variance)
   // A camera's measured noise at each shot's ISO; when set, replaces the generic gains above for that shot.
   std::optional<SensorNoise> sharp_noise, blurred_noise;
+  // Where the blurred frame is moved: false (the benches' record), its 8-bit intensities after the response and
+  // its clip (bilinear: an intensity-domain resampling, as a camera's lens correction or a phone's stabilisation
+  // crop does); true, its irradiance before the sensor's noise and the response (the hand's motion precedes the
+  // sensor).
+  bool warp_irradiance = false;
   std::uint64_t seed = 1;
   void check() const;
 };
