@@ -75,6 +75,7 @@ struct PairsArgs {
   std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
   double learned_prior_weight = PairCalibrationOptions{}.fit.learned_prior_weight;  // --shoulder learned
   std::string black_end = PairCalibrationOptions{}.fit.experimental.black_per_pixel_when_clean ? "per-pixel" : "median";
+  bool noise_oracle = false;  // real regime: the fit is given the sharp shot's true noise per level (an oracle)
   std::string warp_domain = HandheldPairOptions{}.warp_irradiance ? "irradiance" : "intensity";  // the blurred frame's
   bool pairs_only = false;
   int band_replicates = PairCalibrationOptions{}.band.replicates;  // 0: no band (and no band table)
@@ -431,6 +432,23 @@ struct PairsRun {
     return pair;
   }
 
+  // --noise-oracle: the sharp shot's true noise as σ of its 8-bit levels (green), what a noise estimate would have
+  // to deliver. The simulation adds a·E + b variance to the irradiance E = φ(v) (the camera's profile at the shot's
+  // ISO); through ψ = φ⁻¹ that is σ_I(v) = √(a·φ(v) + b) / φ'(v), φ' by central differences of the true curve,
+  // capped at 0.1 where φ' → 0 (the linearisation fails there anyway).
+  std::vector<double> trueSharpNoisePerLevel(const PairCase& c) const {
+    const PoissonGaussian noise =
+        realExposure(*noise_camera, args.blurred_iso, c.ratio, args.sharp_noise_scale).noise_sharp.green;
+    const std::vector<double> phi = sampleInverse(c.truth, 256);
+    std::vector<double> sigma(256);
+    for (int v = 0; v < 256; ++v) {
+      const int lo = std::max(v - 1, 0), hi = std::min(v + 1, 255);
+      const double slope = (phi[hi] - phi[lo]) / ((hi - lo) / 255.0);
+      sigma[v] = std::min(0.1, std::sqrt(noise.variance(phi[v])) / std::max(slope, 1e-3));
+    }
+    return sigma;
+  }
+
   // Calibrates the written pair back and scores it against the truth; fills the case's JSON row.
   CaseScores calibrate(const PairCase& c, const HandheldPair& pair, cv::Size photo_size, const fs::path& dir,
                        std::chrono::steady_clock::time_point t0, nlohmann::json& row) {
@@ -438,6 +456,7 @@ struct PairsRun {
     PairCalibrationOptions options = calibrationOptions(args, loaded);
     // leave one camera out: the case's camera (its curve table's name) is not among the prior's training curves
     if (args.shoulder == "learned") options.fit.learned_prior = io::learnPriorFromCameraCurves({shortName(c.crf)});
+    if (args.noise_oracle && realRegime(args, c.ratio)) options.fit.noise_sigma_per_level = trueSharpNoisePerLevel(c);
     const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
     CaseScores s;
     s.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -710,6 +729,9 @@ const BenchRegistration registration(
                          "read at full resolution only: the rule before stop 37; docs/RESULTS.md#black-end)")
           ->capture_default_str()
           ->check(CLI::IsMember({"median", "per-pixel"}));
+      command.add_flag("--noise-oracle", args->noise_oracle,
+                       "Real regime: give the fit the sharp shot's true noise per level (an oracle: what a noise "
+                       "estimate would have to deliver; with --noise-handling debias, docs/RESULTS.md#stop-38-leads)");
       command.add_option("--warp-domain", args->warp_domain,
                          "Where the blurred frame's handheld motion is applied: intensity (its 8-bit values after the "
                          "response and clip, bilinear: the record) or irradiance (before the noise and the response: "
