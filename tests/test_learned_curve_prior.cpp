@@ -157,7 +157,13 @@ TEST(LearnedCurvePrior, ConditioningOnTheWholeRangeLeavesNothingUnobserved) {
   for (const auto& c : curves) training.push_back(c.phi);
   const LearnedCurvePrior prior = learnCurvePrior(training);
   EXPECT_EQ(prior.curves, 10);
-  EXPECT_TRUE(conditionOnCovered(prior, {0.0, 1.0}).unobserved.empty());
+  // nothing to predict: an empty gain and covariance (no solve on an empty right-hand side, which UBSan reports)
+  const ConditionalExponents whole = conditionOnCovered(prior, {0.0, 1.0});
+  EXPECT_TRUE(whole.unobserved.empty());
+  EXPECT_EQ(whole.gain.rows(), 0);
+  EXPECT_EQ(whole.gain.cols(), static_cast<Eigen::Index>(whole.observed.size()));
+  EXPECT_EQ(whole.offset.size(), 0);
+  EXPECT_EQ(whole.covariance.size(), 0);
   const ConditionalExponents c = conditionOnCovered(prior, {0.0, 0.5});
   EXPECT_EQ(c.unobserved.size(), 32u);
   // conditioning shrinks the variance of every unobserved exponent

@@ -95,6 +95,12 @@ ConditionalExponents conditionOnCovered(const LearnedCurvePrior& prior, std::pai
   Eigen::MatrixXd s_oo = prior.covariance(c.observed, c.observed);
   s_oo.diagonal().array() += prior.observed_exponent_sigma * prior.observed_exponent_sigma;
   const Eigen::VectorXd m_u = prior.mean(c.unobserved), m_o = prior.mean(c.observed);
+  if (nu == 0) {  // nothing to predict; Eigen's solvers bind a reference to the data of an empty right-hand side
+    c.gain = Eigen::MatrixXd::Zero(0, no);
+    c.offset = Eigen::VectorXd(0);
+    c.covariance = Eigen::MatrixXd(0, 0);
+    return c;
+  }
   if (no == 0) {
     c.gain = Eigen::MatrixXd::Zero(nu, 0);
     c.offset = m_u;
