@@ -21,6 +21,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "bench_pairs_summary.hpp"
 #include "bench_real_regime.hpp"
 #include "crfcal/curve_comparison.hpp"
 #include "option_checks.hpp"
@@ -105,84 +106,6 @@ std::vector<double> scaled(std::vector<double> values, double factor) {
 
 bool realRegime(const PairsArgs& args, double ratio) {
   return args.regime == "real" || (args.regime == "auto" && ratio > 2);
-}
-
-// Per-ratio summary of a run (the targets of issue 17 are stated per r).
-struct RatioSummary {
-  std::string regime;
-  double iso_sharp = 0, iso_blurred = 0;
-  int cases = 0, done = 0, within_5_percent = 0, shape_within_001 = 0, size_limit_stops = 0, other_failures = 0;
-  double sum_r_error = 0, worst_r_error = 0, sum_rmse = 0, worst_rmse = 0, sum_shape = 0, worst_shape = 0, seconds = 0;
-};
-
-// Per-ratio band scores (curve_band.hpp): x samples of the true φ_G inside the 90 % band, pooled over the cases.
-struct BandSummary {
-  int cases = 0;
-  BandScore pooled;                     // sums of samples and hits
-  std::vector<double> widths, shape_widths, scale_errors;  // per case: median widths; |a − 1| of the truth's scale
-  double band_seconds = 0, seconds = 0;  // the band's stage, the whole calibrations
-};
-
-double medianOf(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
-
-std::string percent(int hits, int samples) {
-  if (samples == 0) return "-";
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.1f %%", 100.0 * hits / samples);
-  return buffer;
-}
-
-std::string bandSummaryTable(const std::map<double, BandSummary>& by_ratio) {
-  std::ostringstream out;
-  out << "\nband of phi_G (90 %; curve_band.hpp): coverage = fraction of x samples (1024 per case, pooled) where the "
-         "true phi lies inside the band. absolute: the truth as it is against [lower, upper] (phi(1) = 1; the band "
-         "carries the scale's uncertainty); shape: inside the covered range, the truth times its best common scale "
-         "a (least squares onto the fit over the covered range) against fit +- shape half-width (half-sample spread and the other candidate model, no scale part). "
-         "Widths: median over cases of each case's median over the covered range.\n"
-      << "| r | cases | absolute inside covered | absolute above covered | absolute below covered | shape inside "
-         "covered | median width inside (absolute) | median width inside (shape) | median abs(a - 1) | band s / "
-         "calibration s |\n"
-      << "|---|---|---|---|---|---|---|---|---|---|\n";
-  for (const auto& [ratio, b] : by_ratio) {
-    if (b.cases == 0) continue;
-    char line[600];
-    std::snprintf(line, sizeof line, "| %.2f | %d | %s | %s | %s | %s | %.4f | %.4f | %.4f | %.0f / %.0f |\n", ratio,
-                  b.cases, percent(b.pooled.inside_hits, b.pooled.inside).c_str(),
-                  percent(b.pooled.above_hits, b.pooled.above).c_str(),
-                  percent(b.pooled.below_hits, b.pooled.below).c_str(),
-                  percent(b.pooled.shape_hits, b.pooled.inside).c_str(), medianOf(b.widths), medianOf(b.shape_widths),
-                  medianOf(b.scale_errors), b.band_seconds, b.seconds);
-    out << line;
-  }
-  return out.str();
-}
-
-std::string ratioSummaryTable(const std::map<double, RatioSummary>& by_ratio) {
-  std::ostringstream out;
-  out << "\nper r (fitted r error = |r_fitted/r_true - 1|; shape RMSE = min_b RMS(b phi_fit - phi_true) over the "
-         "covered range of G)\n"
-      << "| r | regime | ISO sharp / blurred | cases | r error mean | r error worst | r within 5 % | phi_G RMSE "
-         "mean (worst) | shape RMSE mean (worst) | shape <= 0.01 | kernel-size stops | other failures | time s |\n"
-      << "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
-  for (const auto& [ratio, s] : by_ratio) {
-    const double n = std::max(s.done, 1);
-    char line[512];
-    std::snprintf(line, sizeof line,
-                  "| %.2f | %s | %s | %d | %.4f | %.4f | %d/%d | %.4f (%.4f) | %.4f (%.4f) | %d/%d | %d | %d | %.0f |\n",
-                  ratio, s.regime.c_str(),
-                  s.iso_sharp > 0 ? (std::to_string(static_cast<int>(std::lround(s.iso_sharp))) + " / " +
-                                     std::to_string(static_cast<int>(std::lround(s.iso_blurred)))).c_str()
-                                  : "generic noise",
-                  s.cases, s.sum_r_error / n, s.worst_r_error, s.within_5_percent, s.cases, s.sum_rmse / n,
-                  s.worst_rmse, s.sum_shape / n, s.worst_shape, s.shape_within_001, s.cases, s.size_limit_stops,
-                  s.other_failures, s.seconds);
-    out << line;
-  }
-  return out.str();
 }
 
 // Real photos of ../shared/data used when no --image is given (three cameras, indoor and night scenes).
@@ -432,23 +355,6 @@ struct PairsRun {
     return pair;
   }
 
-  // --noise-oracle: the sharp shot's true noise as σ of its 8-bit levels (green), what a noise estimate would have
-  // to deliver. The simulation adds a·E + b variance to the irradiance E = φ(v) (the camera's profile at the shot's
-  // ISO); through ψ = φ⁻¹ that is σ_I(v) = √(a·φ(v) + b) / φ'(v), φ' by central differences of the true curve,
-  // capped at 0.1 where φ' → 0 (the linearisation fails there anyway).
-  std::vector<double> trueSharpNoisePerLevel(const PairCase& c) const {
-    const PoissonGaussian noise =
-        realExposure(*noise_camera, args.blurred_iso, c.ratio, args.sharp_noise_scale).noise_sharp.green;
-    const std::vector<double> phi = sampleInverse(c.truth, 256);
-    std::vector<double> sigma(256);
-    for (int v = 0; v < 256; ++v) {
-      const int lo = std::max(v - 1, 0), hi = std::min(v + 1, 255);
-      const double slope = (phi[hi] - phi[lo]) / ((hi - lo) / 255.0);
-      sigma[v] = std::min(0.1, std::sqrt(noise.variance(phi[v])) / std::max(slope, 1e-3));
-    }
-    return sigma;
-  }
-
   // Calibrates the written pair back and scores it against the truth; fills the case's JSON row.
   CaseScores calibrate(const PairCase& c, const HandheldPair& pair, cv::Size photo_size, const fs::path& dir,
                        std::chrono::steady_clock::time_point t0, nlohmann::json& row) {
@@ -456,7 +362,9 @@ struct PairsRun {
     PairCalibrationOptions options = calibrationOptions(args, loaded);
     // leave one camera out: the case's camera (its curve table's name) is not among the prior's training curves
     if (args.shoulder == "learned") options.fit.learned_prior = io::learnPriorFromCameraCurves({shortName(c.crf)});
-    if (args.noise_oracle && realRegime(args, c.ratio)) options.fit.noise_sigma_per_level = trueSharpNoisePerLevel(c);
+    if (args.noise_oracle && realRegime(args, c.ratio))  // the sharp shot's true noise per level (an oracle)
+      options.fit.noise_sigma_per_level = intensityNoisePerLevel(
+          realExposure(*noise_camera, args.blurred_iso, c.ratio, args.sharp_noise_scale).noise_sharp.green, c.truth);
     const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
     CaseScores s;
     s.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -1,6 +1,6 @@
 // darktable's camera noise profiles (io/noise_profiles.hpp) on the bundled excerpt, and the real-regime handheld
 // simulation (handheld_simulation.hpp): the sharp shot underexposed by r, each shot with the planted a·x + b noise;
-// the blurred frame moved in the irradiance or the intensity domain.
+// the blurred frame moved in the irradiance or the intensity domain; that noise in a shot's levels.
 #include <cmath>
 #include <fstream>
 #include <functional>
@@ -17,6 +17,7 @@
 #include "crfcal/handheld_simulation.hpp"
 #include "crfcal/io/exif.hpp"
 #include "crfcal/io/noise_profiles.hpp"
+#include "crfcal/sensor_noise.hpp"
 #include "test_support.hpp"
 
 namespace crfcal::test {
@@ -247,6 +248,23 @@ TEST(HandheldSimulation, IrradianceWarpAveragesIrradiancesAcrossAStepAndTheInten
       EXPECT_GT(by_irradiance.at<double>(0, 32) - by_intensity.at<double>(0, 32), 30 * level);
     }
   }
+}
+
+// The irradiance noise of a shot in its levels (sensor_noise.hpp intensityNoisePerLevel, the `bench pairs
+// --noise-oracle`): through a linear response it is √(a·x + b) itself; through φ = x² it is divided by φ' = 2x; where
+// φ' vanishes it is capped.
+TEST(SensorNoise, IntensityNoisePerLevelIsTheIrradianceNoiseOverTheResponseSlope) {
+  const PoissonGaussian noise{4e-4, 1e-6};
+  const std::vector<double> linear = intensityNoisePerLevel(noise, GammaModel{1.0});
+  ASSERT_EQ(linear.size(), 256u);
+  for (const int v : {1, 64, 128, 254}) EXPECT_NEAR(linear[v], std::sqrt(noise.variance(v / 255.0)), 1e-6) << v;
+  const std::vector<double> square = intensityNoisePerLevel(noise, GammaModel{2.0});
+  for (const int v : {32, 128, 250}) {
+    const double x = v / 255.0;
+    EXPECT_NEAR(square[v], std::sqrt(noise.variance(x * x)) / (2 * x), 1e-3 * square[v]) << v;
+  }
+  EXPECT_DOUBLE_EQ(intensityNoisePerLevel(PoissonGaussian{1.0, 1.0}, GammaModel{4.0}, 256, 0.1)[0], 0.1);
+  EXPECT_THROW(intensityNoisePerLevel(noise, GammaModel{1.0}, 1), InvalidInput);
 }
 
 TEST(RealRegimeSimulation, AutoRegimeKeepsRatiosUpToTwoInTheSharpNormalRegime) {

@@ -7,6 +7,9 @@
 // emulate "capturing images under a high ISO"; this is the camera-measured form of that noise.
 // Pure computation: no file I/O.
 #include <algorithm>
+#include <vector>
+
+#include "crfcal/response_model.hpp"
 
 namespace crfcal {
 
@@ -20,5 +23,13 @@ struct PoissonGaussian {
 struct SensorNoise {
   PoissonGaussian red, green, blue;
 };
+
+// σ of a shot's values on its level grid v = 0 … levels − 1 (in [0, 1] units) when the irradiance E = φ(v) carries
+// `noise` (added before the response, as a sensor does): to first order through ψ = φ⁻¹,
+//     σ_I(v) = √(a·φ(v) + b) / φ'(v),
+// φ' by central differences on the grid (one-sided at the ends), capped at `cap` where φ' → 0 (the first order fails
+// there anyway). `bench pairs --noise-oracle` gives it to the fit as the sharp shot's true noise.
+std::vector<double> intensityNoisePerLevel(const PoissonGaussian& noise, const ResponseModel& phi, int levels = 256,
+                                           double cap = 0.1);
 
 }  // namespace crfcal
