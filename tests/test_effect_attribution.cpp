@@ -2,7 +2,10 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <filesystem>
+#include <fstream>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
 #include "crfcal/crf_fitter.hpp"
@@ -129,6 +132,51 @@ TEST(EffectAttribution, CleanUnderexposedJpegPairNamesNoEffect) {
   // signal-dependent noise is what the noise of an underexposed JPEG shot may really be (issue 18 leaves it aside)
   named.erase(std::remove(named.begin(), named.end(), "signal_dependent_noise"), named.end());
   EXPECT_TRUE(named.empty()) << report.summary();
+}
+
+// A clean real-regime pair (r = 8, the sharp shot underexposed by r with the bundled phone's ISO 800 noise, Sony
+// A100 curve, Levin kernel 3, handheld, 4:2:0 JPEG; EXIF 4 % off the truth as every bench pair's): the linearised
+// model's scale a lies 15 % below EXIF and wins its held-out test, but the full fit of the seed's model started
+// from a returns an r within EXIF's 10 % tolerance. Before the full fit had to confirm it, this pair was named
+// "exposure_ratio_mismatch" beside an offset, which kept the pair's ratio evidence from combining the images' r with
+// EXIF (docs/RESULTS.md#ratio-confirmed).
+TEST(EffectAttribution, RatioMismatchOfTheLinearisedModelIsNotNamedWhenTheFullFitKeepsRWithinExifsTolerance) {
+  namespace fs = std::filesystem;
+  test::TempDir dir;
+  const std::string bin = test::crfcalBinary().string();
+  const fs::path curves = samples() / "camera_curves";
+  // Case 5 of this six-case bench (each case's noise and shift are seeded by its index).
+  const auto made = test::run("'" + bin + "' bench pairs --pairs-only --regime real --ratio 8 --image '" +
+                              (samples() / "effects" / "window.jpg").string() +
+                              "' --kernel levin:1 --kernel levin:3 --kernel levin:8 --crf 'table:" +
+                              (curves / "CanonPowerShotG9.csv").string() + "' --crf 'table:" +
+                              (curves / "SonyDSLR-A100.csv").string() + "' --noise-profiles '" +
+                              (samples() / "noise_profiles" / "noiseprofiles.json").string() + "' -o '" +
+                              (dir / "pairs").string() + "'");
+  ASSERT_EQ(made.exit_code, 0) << made.output;
+  const fs::path pair = dir / "pairs" / "case5";
+  const auto calibrated = test::run("'" + bin + "' calibrate '" + (pair / "sharp.jpg").string() + "' '" +
+                                    (pair / "blurred.jpg").string() + "' --channels g --band-replicates 0 -o '" +
+                                    (dir / "out").string() + "'");
+  ASSERT_EQ(calibrated.exit_code, 0) << calibrated.output;
+  std::ifstream truth_file(pair / "truth.json"), report_file(dir / "out" / "report.json");
+  const nlohmann::json truth = nlohmann::json::parse(truth_file), report = nlohmann::json::parse(report_file);
+  const double nominal = truth.at("exif_ratio").get<double>(), true_ratio = truth.at("exposure_ratio").get<double>();
+  nlohmann::json ratio;
+  for (const auto& e : report.at("effects"))
+    if (e.at("name") == "exposure_ratio_mismatch") ratio = e;
+  ASSERT_FALSE(ratio.is_null()) << calibrated.output;
+  const nlohmann::json& parameters = ratio.at("parameters");
+  EXPECT_TRUE(ratio.at("tested").get<bool>());
+  EXPECT_GT(std::abs(parameters.at("relative_difference").get<double>()), 0.10)
+      << "the linearised model's a must be off EXIF here, or the pair does not test the rule";
+  EXPECT_FALSE(ratio.at("detected").get<bool>()) << calibrated.output;
+  EXPECT_LE(std::abs(parameters.at("full_fit_ratio").get<double>() / nominal - 1), 0.10) << calibrated.output;
+  // Not named, EXIF is no longer set aside: the reported r combines the images' with it.
+  EXPECT_TRUE(report.at("exposure_ratio_evidence").at("not_adopted_reason").get<std::string>().empty())
+      << calibrated.output;
+  EXPECT_LE(std::abs(report.at("exposure_ratio").at("fitted").get<double>() / true_ratio - 1), 0.05)
+      << calibrated.output;
 }
 
 }  // namespace
