@@ -279,7 +279,8 @@ bool refitWithSelectedModel(EffectSearch& search) {
 // a) returns an r beyond EXIF's tolerance on a's side. A refit with level effects is no such witness: it may trade
 // an offset for the exponent (r → r^γ; the refit guard judges it). Otherwise the name is withdrawn, a refit made for
 // the ratio alone is discarded, and the pair's ratio evidence (pair_stage_ratio.cpp) combines the images' r with
-// EXIF as for any pair whose EXIF was not found off. A user's fixed r leaves nothing to confirm.
+// EXIF as for any pair whose EXIF was not found off. A fixed r (the user's, or held at EXIF for a blur too small to
+// fix it) is not confirmed or withdrawn here: the naming stays as the held-out test made it.
 void confirmRatioMismatch(EffectSearch& search, bool ratio_only_refit) {
   EffectEntry& e = search.entry("exposure_ratio_mismatch");
   const EffectInputs& in = search.in;

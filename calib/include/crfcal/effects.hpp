@@ -44,7 +44,10 @@
 // exposure_ratio_mismatch in addition needs |a / r_EXIF − 1| > ratio_tolerance (nominal EXIF times, ISOs and
 // f-numbers are rounded to 1/3 stop: up to ≈ 6 % each).
 // It is the explanation of last resort: a level effect that, with r held at r_EXIF, passes its own test and leaves
-// the free r no significant held-out drop against it is named instead (EffectEntry::explained_by).
+// the free r no significant held-out drop against it is named instead (EffectEntry::explained_by). And the full fit of
+// the seed's model must agree: started from a with r free, the fitter returns an r beyond ratio_tolerance on a's side
+// of r_EXIF, else the name is withdrawn (parameters "full_fit_ratio", "not_confirmed_by_full_fit"; the linearised a
+// re-fits φ by phi_terms EMoR curves only and strays far from the fitter's r on noisy real-regime pairs).
 // signal_dependent_noise is tested on I itself (its noise is what the seed models; in the residuals above it is
 // averaged by the kernel and hidden under B's quantisation): Immerkær's residual (noise_estimation.hpp) in each of
 // `noise_bins` level bins (equal counts of I's 5×5 local mean), on the 30 % of each bin with the least 7×7 residual
