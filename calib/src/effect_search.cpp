@@ -273,14 +273,15 @@ bool refitWithSelectedModel(EffectSearch& search) {
 
 // exposure_ratio_mismatch is named from the linearised model's scale a, which re-fits φ by four EMoR terms only and
 // is a poor estimate of r on real-regime pairs (bench pairs --ratio 8, clean pairs, EXIF 8.32, truth 8: a = 12.3 and
-// 10.9 where the fitter's r is 7.89 and 7.62, docs/RESULTS.md#ratio-check-free-r). EXIF r of a real camera is good
-// to a few per cent (issue 18), so the mismatch stays named only when the full fit of the seed's model agrees: the
-// fitter started from a with r free (the ratio-only refit when that ran; the base fit when its r was within 2 % of
-// a) returns an r beyond EXIF's tolerance on a's side. A refit with level effects is no such witness: it may trade
-// an offset for the exponent (r → r^γ; the refit guard judges it). Otherwise the name is withdrawn, a refit made for
-// the ratio alone is discarded, and the pair's ratio evidence (pair_stage_ratio.cpp) combines the images' r with
-// EXIF as for any pair whose EXIF was not found off. A fixed r (the user's, or held at EXIF for a blur too small to
-// fix it) is not confirmed or withdrawn here: the naming stays as the held-out test made it.
+// 10.9 where the fitter's r is 7.89 and 7.62, docs/RESULTS.md#ratio-check-free-r; much of that gap is the search's
+// debias of I's darkest codes, docs/RESULTS.md#effects-debias). EXIF r of a real camera is good to a few per cent
+// (issue 18), so the mismatch stays named only when the full fit of the seed's model agrees: the fitter started from
+// a with r free (the ratio-only refit when that ran; the base fit when its r was within 2 % of a) returns an r
+// beyond EXIF's tolerance on a's side. A refit with level effects is no such witness: it may trade an offset for the
+// exponent (r → r^γ; the refit guard judges it). Otherwise the name is withdrawn, a refit made for the ratio alone is
+// discarded, and the pair's ratio evidence (pair_stage_ratio.cpp) combines the images' r with EXIF as for any pair
+// whose EXIF was not found off. A fixed r (the user's, or held at EXIF for a blur too small to fix it) is not
+// confirmed or withdrawn here: the naming stays as the held-out test made it.
 void confirmRatioMismatch(EffectSearch& search, bool ratio_only_refit) {
   EffectEntry& e = search.entry("exposure_ratio_mismatch");
   const EffectInputs& in = search.in;
