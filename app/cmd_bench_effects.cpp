@@ -8,7 +8,9 @@
 // fitted with the same measurable range).
 // --form held-out plants the effects in forms the detectors do not assume (effect_planting.hpp), --two-effects
 // plants pairs of effects, --ratio R puts the pairs in the real regime (r ≈ R, the sharp shot underexposed by r);
-// the confusion matrix (planted × named) follows the table.
+// the confusion matrix (planted × named) follows the table. In the real regime (--ratio; or --sharp-noise sensor) the
+// sharp shot gets a real camera's measured raw noise at its ISO (darktable profile, as `bench pairs`) on its
+// irradiance, in place of the seed's Gaussian intensity noise (--sharp-noise intensity).
 // --sweep: the φ bias each effect causes when it is ignored (effects off), per strength — the basis of the
 // stated thresholds.
 #include <algorithm>
@@ -18,6 +20,7 @@
 #include <filesystem>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <random>
 #include <sstream>
 
@@ -26,6 +29,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bench_command.hpp"
+#include "bench_real_regime.hpp"
 #include "bench_statistics.hpp"
 #include "option_checks.hpp"
 #include "crfcal/effect_planting.hpp"
@@ -35,6 +39,7 @@
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/jpeg_roundtrip.hpp"
 #include "crfcal/io/kernel_io.hpp"
+#include "crfcal/io/noise_profiles.hpp"
 #include "crfcal/io/response_io.hpp"
 #include "crfcal/pair_calibration.hpp"
 
@@ -66,6 +71,11 @@ struct EffectsArgs {
   int jpeg_quality = 0;           // > 0: both shots through a 4:2:0 JPEG of this quality
   bool handheld = false;          // B shifted 2–4 px and turned by up to 0.3°, registration on
   std::vector<std::string> photos;  // other scenes instead of the bundled ones (longest side scaled to 512 px)
+  // intensity (the seed's Sec. 5), sensor (PlantingOptions::sharp_sensor_noise) or auto: sensor in the real regime
+  // (--ratio), where the short high-ISO shot's noise is a camera's, as in `bench pairs`
+  std::string sharp_noise = "auto";
+  std::string noise_camera = "LGE Nexus 5";  // sensor: whose darktable profile (as `bench pairs`)
+  std::string noise_profiles;                // sensor: darktable noiseprofiles.json (default: io::defaultNoiseProfiles)
 };
 
 // Pairs of effects planted together (--two-effects): each pairs effects whose detectors compete for the same misfit.
@@ -104,6 +114,7 @@ struct Sources {
   std::vector<cv::Mat> mosaic;  // 2×2 mosaics of them (510 px): enough 32-px blocks for the paired tests
   cv::Mat colour;
   std::vector<fs::path> curves;
+  std::optional<io::CameraNoiseProfile> noise_camera;  // --sharp-noise sensor
 };
 
 // Other scenes: each photo (longest side 512 px) serves as the grey scene and, in colour, as the colour scene.
@@ -188,6 +199,9 @@ Setup makeSetup(const Sources& src, const std::string& effect, int seed, double 
   }
   s.planting.form = form;
   s.planting.seed = static_cast<std::uint64_t>(seed);
+  // The short shot at the lowest profiled ISO × r (r× less light at r× the gain, as `bench pairs`).
+  if (src.noise_camera)
+    s.planting.sharp_sensor_noise = realExposure(*src.noise_camera, 0, std::max(1.0, s.planting.ratio)).noise_sharp;
   if (handheld) {  // its own stream: the cases without it stay what they were
     std::mt19937_64 motion(static_cast<std::uint64_t>(seed) * 104729 + 3);
     std::uniform_real_distribution<double> m(0, 1);
@@ -360,7 +374,10 @@ std::string confusionMatrix(const std::vector<std::string>& labels, const std::v
 int runEffects(const EffectsArgs& args) {
   const io::OutputPolicy policy{"bench effects", {}, args.force};
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
-  const Sources src = args.photos.empty() ? loadSources() : loadPhotos(args.photos, loadSources());
+  Sources src = args.photos.empty() ? loadSources() : loadPhotos(args.photos, loadSources());
+  if (args.sharp_noise == "sensor" || (args.sharp_noise == "auto" && args.ratio > 0))
+    src.noise_camera = io::readCameraNoiseProfile(
+        args.noise_profiles.empty() ? io::defaultNoiseProfiles() : fs::path(args.noise_profiles), args.noise_camera);
   std::vector<std::string> effects = args.effects;
   if (effects.empty() && args.two_effects) effects = kEffectPairs;
   if (effects.empty()) {
@@ -397,6 +414,7 @@ int runEffects(const EffectsArgs& args) {
     }
   }, threads > 1 ? static_cast<double>(cases.size()) : 1.0);
   std::ostringstream table;
+  if (src.noise_camera) table << "sharp shot: sensor noise of " << src.noise_camera->summary() << "\n\n";
   table << "| planted effect | strength range | cases | detected (right name) | exactly right (no other) | "
            "false names | phi ok (<= twin + 0.005) | phi_G RMSE median: reported | base | clean twin | s/case |\n"
            "|---|---|---|---|---|---|---|---|---|---|---|\n";
@@ -442,7 +460,9 @@ int runEffects(const EffectsArgs& args) {
   if (!args.json.empty())
     io::writeJsonOutput(args.json,
                         {{"cases", json}, {"form", args.form}, {"ratio", args.ratio}, {"jpeg_quality", args.jpeg_quality},
-                         {"handheld", args.handheld}},
+                         {"handheld", args.handheld},
+                         {"sharp_noise",
+                          src.noise_camera ? "sensor: " + src.noise_camera->summary() : std::string("intensity")}},
                         policy.command);
   return kExitOk;
 }
@@ -486,6 +506,20 @@ const BenchRegistration registration(
       command.add_option("--photo", args->photos,
                          "Scenes instead of the bundled Levin mosaics and window photo (longest side 512 px; the first "
                          "also serves as the colour scene)")
+          ->check(CLI::ExistingFile);
+      command.add_option("--sharp-noise", args->sharp_noise,
+                         "The sharp shot's noise: intensity (the seed's Gaussian noise on I), sensor (a camera's "
+                         "measured raw noise at the short shot's ISO, lowest ISO x r, on its irradiance before the "
+                         "curve) or auto (sensor with --ratio, the real regime; else intensity)")
+          ->check(CLI::IsMember({"auto", "intensity", "sensor"}))
+          ->capture_default_str();
+      command.add_option("--noise-camera", args->noise_camera,
+                         "--sharp-noise sensor: camera whose darktable noise profile the sharp shot gets, "
+                         "\"maker model\"")
+          ->capture_default_str();
+      command.add_option("--noise-profiles", args->noise_profiles,
+                         "--sharp-noise sensor: darktable noiseprofiles.json (default: the shared data's, else the "
+                         "bundled excerpt samples/noise_profiles/)")
           ->check(CLI::ExistingFile);
       command.add_flag("--handheld", args->handheld,
                        "Handheld misregistration: B shifted 2-4 px and turned by up to 0.3 degrees; registration on");

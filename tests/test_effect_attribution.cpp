@@ -7,6 +7,7 @@
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "crfcal/crf_fitter.hpp"
 #include "crfcal/effect_planting.hpp"
@@ -134,13 +135,14 @@ TEST(EffectAttribution, CleanUnderexposedJpegPairNamesNoEffect) {
   EXPECT_TRUE(named.empty()) << report.summary();
 }
 
-// A clean real-regime pair (r = 8, the sharp shot underexposed by r with the bundled phone's ISO 800 noise, Sony
-// A100 curve, Levin kernel 3, handheld, 4:2:0 JPEG; EXIF 4 % off the truth as every bench pair's): the linearised
-// model's scale a lies 15 % below EXIF and wins its held-out test, but the full fit of the seed's model started
-// from a returns an r within EXIF's 10 % tolerance. Before the full fit had to confirm it, this pair was named
-// "exposure_ratio_mismatch" beside an offset, which kept the pair's ratio evidence from combining the images' r with
-// EXIF (docs/RESULTS.md#ratio-confirmed).
-TEST(EffectAttribution, RatioMismatchOfTheLinearisedModelIsNotNamedWhenTheFullFitKeepsRWithinExifsTolerance) {
+// A clean real-regime pair (r = 8, the sharp shot underexposed by r with the bundled phone's ISO 800 noise, added to
+// its irradiance before the curve as a sensor does; Sony A100 curve, Levin kernel 3, handheld, 4:2:0 JPEG; EXIF 4 %
+// off the truth as every bench pair's). The effect search used to debias I's level functions with one intensity-domain
+// σ although the base fit it tests does not: K ⊗ φ(I) fell where the sharp shot holds its darkest codes and this pair
+// was named black_level_offset (its refit then traded the offset for the exponent, r 3.05; before the full fit had to
+// confirm it, exposure_ratio_mismatch too). The search now reads I's noise as the fit does
+// (docs/RESULTS.md#effects-debias).
+TEST(EffectAttribution, CleanRealRegimePairsDarkestCodesAreNotNamedAnOffset) {
   namespace fs = std::filesystem;
   test::TempDir dir;
   const std::string bin = test::crfcalBinary().string();
@@ -161,22 +163,64 @@ TEST(EffectAttribution, RatioMismatchOfTheLinearisedModelIsNotNamedWhenTheFullFi
   ASSERT_EQ(calibrated.exit_code, 0) << calibrated.output;
   std::ifstream truth_file(pair / "truth.json"), report_file(dir / "out" / "report.json");
   const nlohmann::json truth = nlohmann::json::parse(truth_file), report = nlohmann::json::parse(report_file);
-  const double nominal = truth.at("exif_ratio").get<double>(), true_ratio = truth.at("exposure_ratio").get<double>();
-  nlohmann::json ratio;
-  for (const auto& e : report.at("effects"))
-    if (e.at("name") == "exposure_ratio_mismatch") ratio = e;
-  ASSERT_FALSE(ratio.is_null()) << calibrated.output;
-  const nlohmann::json& parameters = ratio.at("parameters");
-  EXPECT_TRUE(ratio.at("tested").get<bool>());
-  EXPECT_GT(std::abs(parameters.at("relative_difference").get<double>()), 0.10)
-      << "the linearised model's a must be off EXIF here, or the pair does not test the rule";
-  EXPECT_FALSE(ratio.at("detected").get<bool>()) << calibrated.output;
-  EXPECT_LE(std::abs(parameters.at("full_fit_ratio").get<double>() / nominal - 1), 0.10) << calibrated.output;
-  // Not named, EXIF is no longer set aside: the reported r combines the images' with it.
-  EXPECT_TRUE(report.at("exposure_ratio_evidence").at("not_adopted_reason").get<std::string>().empty())
-      << calibrated.output;
+  const double true_ratio = truth.at("exposure_ratio").get<double>();
+  for (const auto& e : report.at("effects")) {
+    const bool testable = e.at("name") != "channel_mixing" && e.at("name") != "spatially_varying_blur";  // G, kernel
+    ASSERT_TRUE(e.at("tested").get<bool>() || !testable) << e.at("name");
+    if (e.at("name") != "signal_dependent_noise") EXPECT_FALSE(e.at("detected").get<bool>()) << e.dump();
+  }
   EXPECT_LE(std::abs(report.at("exposure_ratio").at("fitted").get<double>() / true_ratio - 1), 0.05)
       << calibrated.output;
+}
+
+// A camera colour matrix planted in the blurred shot (the held-out form) of a real-regime pair (r = 6, the seed's
+// intensity noise in the sharp shot, 4:2:0 JPEG): the linearised model's scale a lies 47 % above EXIF and wins its
+// held-out test, but the full fit of the seed's model started from a returns an r on EXIF's other side. Named, the
+// mismatch would set EXIF aside and its refit would report a ratio the full fit does not support; it is withdrawn
+// (docs/RESULTS.md#ratio-confirmed).
+TEST(EffectAttribution, RatioMismatchOfTheLinearisedModelIsNotNamedWhenTheFullFitDisagrees) {
+  cv::Mat photo = cv::imread((samples() / "effects" / "window.jpg").string());
+  ASSERT_FALSE(photo.empty());
+  PlantingOptions po;
+  po.effect = "channel_mixing";
+  po.strength = 1.5 * plantingThreshold("channel_mixing");
+  po.form = "held_out";
+  po.ratio = 6;
+  po.exposure /= po.ratio;
+  po.seed = 2;
+  const ResponseModel truth = TableModel{io::readCurveTable(samples() / "camera_curves" / "NikonD70.csv")};
+  const cv::Mat K = levinKernel(3);
+  PlantedPair pair = plantEffect(photo, truth, K, po);
+  pair.sharp = io::jpegRoundTrip(pair.sharp, 90);
+  pair.blurred = io::jpegRoundTrip(pair.blurred, 90);
+  CrfFitOptions fo;
+  fo.nominal_ratio = pair.exif_ratio;
+  EffectInputs in;
+  in.channels = {"R", "G", "B"};
+  std::vector<cv::Mat> sharp, blurred;
+  cv::split(pair.sharp, sharp);
+  cv::split(pair.blurred, blurred);
+  for (int c = 0; c < 3; ++c) {  // BGR
+    in.sharp[in.channels[c]] = sharp[2 - c];
+    in.blurred[in.channels[c]] = blurred[2 - c];
+    in.fits[in.channels[c]] = fitInverseCrf(sharp[2 - c], blurred[2 - c], K, fo);
+  }
+  in.kernel = K;
+  in.kernel_estimated = false;
+  in.nominal_ratio = pair.exif_ratio;
+  in.fit = fo;
+  const EffectReport report = diagnoseEffects(in);
+  const auto ratio = std::find_if(report.entries.begin(), report.entries.end(),
+                                  [](const EffectEntry& e) { return e.name == "exposure_ratio_mismatch"; });
+  ASSERT_NE(ratio, report.entries.end());
+  ASSERT_TRUE(ratio->tested) << report.summary();
+  EXPECT_GT(std::abs(ratio->parameters.at("relative_difference")), 0.10)
+      << "the linearised model's a must be off EXIF here, or the pair does not test the rule\n" << report.summary();
+  EXPECT_FALSE(ratio->detected) << report.summary();
+  ASSERT_EQ(ratio->parameters.count("full_fit_ratio"), 1u) << report.summary();
+  const double full = ratio->parameters.at("full_fit_ratio") / pair.exif_ratio - 1;
+  EXPECT_TRUE(std::abs(full) <= 0.10 || full * ratio->parameters.at("relative_difference") < 0) << report.summary();
+  EXPECT_EQ(ratio->parameters.count("not_confirmed_by_full_fit"), 1u);
 }
 
 }  // namespace

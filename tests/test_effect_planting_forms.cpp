@@ -8,6 +8,7 @@
 
 #include "crfcal/effect_planting.hpp"
 #include "crfcal/error.hpp"
+#include "crfcal/sensor_noise.hpp"
 
 namespace crfcal {
 namespace {
@@ -37,6 +38,43 @@ TEST(PlantingForms, HeldOutVignettingLosesTheStrengthAtTheCornersOfOneShot) {
     EXPECT_NEAR(loss, 0.3, 0.02) << p.detail;
     EXPECT_NE(p.detail.find("cos^4"), std::string::npos);
   }
+}
+
+// The sharp shot's std over the inner part of one half of a two-level photo.
+double halfStd(const cv::Mat& sharp, bool left) {
+  const cv::Rect half(left ? 10 : sharp.cols / 2 + 10, 10, sharp.cols / 2 - 20, sharp.rows - 20);
+  cv::Scalar mean, sd;
+  cv::meanStdDev(sharp(half), mean, sd);
+  return sd[0];
+}
+
+TEST(PlantingForms, SensorNoiseOfTheSharpShotIsAddedBeforeTheCurve) {
+  // A camera adds its noise to the irradiance, before the curve (sensor_noise.hpp): through a gamma-2.2 curve each
+  // level gets σ_I = √(a·φ + b) / φ' — here the darks 1.4× the brights' — where the seed's intensity noise is the
+  // same everywhere.
+  cv::Mat photo(200, 200, CV_8UC1, cv::Scalar(40));
+  photo.colRange(100, 200).setTo(200);
+  PlantingOptions o = quiet("none", 0, 3);
+  o.form = "detector";
+  const ResponseModel phi = GammaModel{2.2};
+  SensorNoise noise;
+  noise.green = {2e-4, 2e-6};
+  o.sharp_sensor_noise = SensorNoise{};  // a noise-free law first: the clean levels of the two halves
+  const PlantedPair clean = plantEffect(photo, phi, kDelta, o);
+  o.sharp_sensor_noise = noise;
+  const PlantedPair noisy = plantEffect(photo, phi, kDelta, o);
+  const std::vector<double> law = intensityNoisePerLevel(noise.green, phi, 256);
+  for (const bool left : {true, false}) {
+    const int level = clean.sharp.at<uchar>(100, left ? 50 : 150);
+    const double expected = 255 * law[static_cast<std::size_t>(level)];
+    EXPECT_NEAR(halfStd(noisy.sharp, left), std::sqrt(expected * expected + 1.0 / 12), 0.12 * expected)
+        << (left ? "dark" : "bright") << " half at level " << level;
+  }
+  EXPECT_GT(halfStd(noisy.sharp, true), 1.25 * halfStd(noisy.sharp, false));
+  o.sharp_sensor_noise.reset();  // the seed's way: one σ in the intensity
+  o.sharp_sigma = 0.01;
+  const PlantedPair seed = plantEffect(photo, phi, kDelta, o);
+  EXPECT_NEAR(halfStd(seed.sharp, true) / halfStd(seed.sharp, false), 1.0, 0.1);
 }
 
 TEST(PlantingForms, HeldOutClippingIsAKneeWithoutAPlateau) {

@@ -4,14 +4,17 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "crfcal/crf_fitter.hpp"
 #include "crfcal/effect_planting.hpp"
 #include "crfcal/effects.hpp"
 #include "crfcal/io/response_io.hpp"
 #include "test_support.hpp"
+#include "../calib/src/effect_problem.hpp"
 
 namespace crfcal {
 namespace {
@@ -137,6 +140,78 @@ TEST(EffectRefitGuard, RefitIsRejectedWhenTheBasePhiExplainsTheHeldBackPixelsBet
   EXPECT_TRUE(report.fits.empty());
   EXPECT_LT(report.heldout_error_base_fit_selected_model, report.heldout_error_refit) << report.summary();
   EXPECT_NE(report.refit_rejected_reason.find("same extended model"), std::string::npos) << report.refit_rejected_reason;
+}
+
+// Above every level the search's samples read: the largest B of its usable pixels, and of I within the kernel's
+// reach of them (unit levels).
+double topOfTheData(const effect::EffectSearch& search) {
+  double top_b = 0, top_i = 0;
+  cv::Mat reach;
+  const int n = std::max(search.K.rows, search.K.cols);
+  cv::dilate(search.p.usable, reach, cv::Mat::ones(n, n, CV_8U));
+  cv::minMaxLoc(search.p.B[0], nullptr, &top_b, nullptr, nullptr, search.p.usable);
+  cv::minMaxLoc(search.p.I[0], nullptr, &top_i, nullptr, nullptr, reach);
+  return std::max(top_b, top_i);
+}
+
+// A clean pair's search with its base fit offered back as the refit after `reshape` (φ on the 1024-grid, the top of
+// the data), then guarded.
+template <class Reshape>
+EffectReport guardedRefit(Reshape reshape) {
+  PlantingOptions po;
+  po.ratio = 1.25;
+  po.exposure = 0.08;  // neither shot near full scale: levels above the data are left for the curves' rise
+  po.seed = 15;
+  const ResponseModel truth = TableModel{io::readCurveTable(samples() / "camera_curves" / "CanonPowerShotG9.csv")};
+  const cv::Mat K = levinKernel(1);
+  const PlantedPair pair = plantEffect(photoPair(), truth, K, po);
+  CrfFitOptions fo;
+  fo.nominal_ratio = pair.exif_ratio;
+  const EffectInputs in = greenInputs(pair, K, fo, pair.exif_ratio);
+  const EffectOptions options;
+  effect::EffectSearch search(in, options);
+  EXPECT_TRUE(effect::prepareProblem(search));
+  CrfFitResult refit = in.fits.at("G");
+  reshape(refit.inverse_crf, topOfTheData(search));
+  search.report.fits["G"] = refit;
+  effect::guardRefit(search);
+  return search.report;
+}
+
+TEST(EffectRefitGuard, RefitFlatOverTheDataIsRejected) {
+  // φ = 0 up to the top of the data, its whole rise above: Eq. 4's residuals vanish with φ (their 1/φ' weights are
+  // floored), so measured at its own scale this refit explained the held-back pixels "better" than any curve — a
+  // vivo X6S pair (`--channels g`) adopted one. The guard judges a refit at the base fit's scale over the data.
+  const EffectReport report = guardedRefit([](std::vector<double>& phi, double top) {
+    const int n = static_cast<int>(phi.size());
+    const int knee = static_cast<int>(std::ceil(top * (n - 1))) + 1;
+    ASSERT_LT(knee, n - 1);
+    for (int i = 0; i < n; ++i) phi[i] = i <= knee ? 0.0 : static_cast<double>(i - knee) / (n - 1 - knee);
+  });
+  EXPECT_FALSE(report.refit_adopted) << report.summary();
+  EXPECT_NE(report.refit_rejected_reason.find("flat over the data"), std::string::npos) << report.refit_rejected_reason;
+}
+
+TEST(EffectRefitGuard, RefitIsJudgedAtTheBaseFitsScaleOverTheData) {
+  // The same φ shrunk 10⁴-fold over the data is the base fit again (Eq. 4: φ → bφ) and is judged as it: adopted
+  // (not worse). A wrong shape shrunk the same way is rejected; at its own scale its floored residuals were 10⁻⁸ of
+  // the base fit's and it was adopted.
+  const auto shrunk = [](double exponent) {
+    return [exponent](std::vector<double>& phi, double top) {
+      const int n = static_cast<int>(phi.size());
+      const int knee = static_cast<int>(std::ceil(top * (n - 1))) + 1;
+      const std::vector<double> base = phi;
+      for (int i = 0; i <= knee; ++i) phi[i] = 1e-4 * base[knee] * std::pow(base[i] / base[knee], exponent);
+      for (int i = knee + 1; i < n; ++i)
+        phi[i] = phi[knee] + (1 - phi[knee]) * static_cast<double>(i - knee) / (n - 1 - knee);
+    };
+  };
+  const EffectReport same = guardedRefit(shrunk(1.0));
+  EXPECT_TRUE(same.refit_adopted) << same.refit_rejected_reason;
+  EXPECT_NEAR(same.heldout_error_refit, same.heldout_error_base_fit, 1e-9 * same.heldout_error_base_fit);
+  const EffectReport bent = guardedRefit(shrunk(1.6));
+  EXPECT_FALSE(bent.refit_adopted) << bent.summary();
+  EXPECT_GT(bent.heldout_error_refit, bent.heldout_error_base_fit);
 }
 
 }  // namespace

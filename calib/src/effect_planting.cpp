@@ -64,6 +64,10 @@ void PlantingOptions::check() const {
   if (!(exposure > 0 && exposure <= 1)) throw InvalidInput("planting: exposure must be in (0, 1]");
   if (!(sharp_sigma >= 0) || noise_gain_blurred < 0 || read_noise_blurred < 0)
     throw InvalidInput("planting: noise must be >= 0");
+  if (sharp_sensor_noise)
+    for (const PoissonGaussian* law : {&sharp_sensor_noise->red, &sharp_sensor_noise->green, &sharp_sensor_noise->blue})
+      if (!std::isfinite(law->a) || !std::isfinite(law->b) || law->a < 0)
+        throw InvalidInput("planting: the sharp shot's sensor noise must be finite, its shot-noise term >= 0");
   for (const auto& [name, value] : {std::pair{effect, strength}, std::pair{second_effect, second_strength}}) {
     if (name == "clipping" && !(value < 1)) throw InvalidInput("planting: clipping strength must be < 1");
     if (name == "signal_dependent_noise" && !(value >= 1))
@@ -312,8 +316,8 @@ double plantClipping(const std::vector<cv::Mat>& Ei, std::vector<cv::Mat>& Eb, c
 }
 
 // I and B from their irradiances: I through the curve with the seed's Gaussian intensity noise (level-dependent
-// when planted), B with the long exposure's small Poisson–Gaussian irradiance noise, the clip, the curve and the
-// handheld misregistration; both 8-bit.
+// when planted) or with a sensor's irradiance noise before it (sharp_sensor_noise), B with the long exposure's small
+// Poisson–Gaussian irradiance noise, the clip, the curve and the handheld misregistration; both 8-bit.
 PlantedPair renderPair(const std::vector<cv::Mat>& Ei, const std::vector<cv::Mat>& Eb, double clip,
                        const ResponseCurve& curve, const PlantedEffects& fx, std::mt19937_64& rng, cv::Size size,
                        PlantedPair pair) {
@@ -328,14 +332,29 @@ PlantedPair renderPair(const std::vector<cv::Mat>& Ei, const std::vector<cv::Mat
   const bool moved = o.shift_x != 0 || o.shift_y != 0 || o.rotation_deg != 0;
   const int nc = static_cast<int>(Ei.size());
   std::vector<cv::Mat> sharp(nc), blurred(nc);
+  const bool sensor = o.sharp_sensor_noise && !fx.has("signal_dependent_noise");
   for (int c = 0; c < nc; ++c) {
-    cv::Mat i = curve.forward(cv::max(cv::min(Ei[c], 1.0), 0.0));
-    for (int y = 0; y < i.rows; ++y) {
-      double* p = i.ptr<double>(y);
-      for (int x = 0; x < i.cols; ++x) {
-        double sd = o.sharp_sigma;
-        if (fx.has("signal_dependent_noise")) sd *= std::pow(noise_ratio, 0.5 * (0.5 - std::clamp(p[x], 0.0, 1.0)) / 0.8);
-        p[x] += sd * normal(rng);
+    cv::Mat i;
+    if (sensor) {  // the camera's way: noise on the irradiance, then the clip and the curve
+      const PoissonGaussian& law = nc == 1 || c == 1 ? o.sharp_sensor_noise->green
+                                   : c == 0          ? o.sharp_sensor_noise->blue  // BGR
+                                                     : o.sharp_sensor_noise->red;
+      cv::Mat e = Ei[c].clone();
+      for (int y = 0; y < e.rows; ++y) {
+        double* p = e.ptr<double>(y);
+        for (int x = 0; x < e.cols; ++x) p[x] += std::sqrt(law.variance(p[x])) * normal(rng);
+      }
+      i = curve.forward(cv::max(cv::min(e, 1.0), 0.0));
+    } else {  // the seed's way (Sec. 5): Gaussian noise on the intensity
+      i = curve.forward(cv::max(cv::min(Ei[c], 1.0), 0.0));
+      for (int y = 0; y < i.rows; ++y) {
+        double* p = i.ptr<double>(y);
+        for (int x = 0; x < i.cols; ++x) {
+          double sd = o.sharp_sigma;
+          if (fx.has("signal_dependent_noise"))
+            sd *= std::pow(noise_ratio, 0.5 * (0.5 - std::clamp(p[x], 0.0, 1.0)) / 0.8);
+          p[x] += sd * normal(rng);
+        }
       }
     }
     i = cv::max(cv::min(i, 1.0), 0.0);

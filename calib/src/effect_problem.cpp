@@ -90,8 +90,8 @@ std::vector<double> onLevels(std::span<const double> f, int levels) {
   return out;
 }
 
-// The noisy I: its level functions debiased (noise_debias.hpp, E[g(I) | clean c] = f(c)), so that Jensen's bias of
-// φ(I) and the clip of the noise at 0 and 1 do not pose as an effect (e.g. as an offset in the darks).
+// I's level functions, debiased (noise_debias.hpp, E[g(I) | clean c] = f(c)) when the base fit debiases its noisy I
+// (NoiseHandling::debias): the search reads I's noise as the fit it tests does (readChannels).
 cv::Mat blurredLevelFunction(const Prepared& p, int c, std::span<const double> f, const cv::Mat& K) {
   std::vector<double> g = onLevels(f, p.levels[c]);
   if (!p.debias[c].identity()) g = p.debias[c].apply(g);
@@ -662,7 +662,7 @@ Spec EffectSearch::withSelected(const std::string& except) const {
 
 namespace {
 
-// Units, the level grid, φ and the debiasing of I's level functions, per channel.
+// Units, the level grid, φ and I's noise (whether it is noisy, the debias when the fit debiases), per channel.
 void readChannels(EffectSearch& search) {
   const EffectInputs& in = search.in;
   Prepared& p = search.p;
@@ -676,9 +676,16 @@ void readChannels(EffectSearch& search) {
     const int L = in.sharp.at(name).depth() == CV_8U ? 256 : 1024;
     p.levels.push_back(L);
     const double sigma = estimateNoiseSigma(p.I.back()).sigma;
+    p.noisy.push_back(sigma * (L - 1) > 0.25);  // below a quarter level: no bias to remove, no clip by noise
+    // The search tests the base fit's model, so it reads I's noise as that fit did: debiased only when the fit
+    // debiases (NoiseHandling::debias). The fitter's default leaves φ(I) as it is, and rightly for a camera: its noise
+    // enters the irradiance before the curve, where φ(I) = clip(φ(c) + n) carries no Jensen bias, only the clip at
+    // black that the fit censors by region. The intensity-domain law of the debias (the seed's simulation, Sec. 5)
+    // lowered K ⊗ φ(I) where the sharp shot holds its darkest codes and named false offsets on clean real-regime
+    // pairs, even with the sharp shot's true noise per level (docs/RESULTS.md#effects-debias).
     NoiseDebiasOptions dopt;
     dopt.levels = L;
-    dopt.sigma = sigma * (L - 1) > 0.25 ? std::min(sigma, 0.5) : 0.0;  // below a quarter level: no bias to remove
+    if (p.noisy.back() && in.fit.experimental.noise == NoiseHandling::debias) dopt.sigma = std::min(sigma, 0.5);
     p.debias.push_back(detail::cachedNoiseDebias(dopt));
   }
 }
@@ -711,10 +718,10 @@ cv::Mat usablePixels(EffectSearch& search) {
     const double margin = fullScaleMargin(search, c);
     search.full_scale_margin = std::max(search.full_scale_margin, margin);
     near_full |= p.B[c] >= search.in.fit.saturation_high - margin;
-    // A noisy I touches 0 and 1 by noise alone (the debiased level functions model that clip, as in the fitter):
-    // only regions whose local median is saturated are saturated — the darkest regions pin an offset.
+    // A noisy I touches 0 and 1 by noise alone: as in the fitter, only regions whose local median is saturated are
+    // saturated — the darkest regions pin an offset.
     cv::Mat level = p.I[c];
-    if (!p.debias[c].identity()) {
+    if (p.noisy[c]) {
       cv::Mat f32, median;
       p.I[c].convertTo(f32, CV_32F);
       cv::medianBlur(f32, median, 5);

@@ -103,22 +103,23 @@ struct Prepared {
   std::vector<cv::Mat> I, B;        // unit CV_64F per channel (original)
   std::vector<int> depth;
   std::vector<int> levels;          // level grid of I (256 for 8-bit data, else 1024)
-  std::vector<NoiseDebias> debias;  // per channel (identity when I is not noisy)
+  std::vector<bool> noisy;          // per channel: I's noise above a quarter level (its black and white read by region)
+  std::vector<NoiseDebias> debias;  // per channel (identity unless the fit debiases and I is noisy)
   cv::Mat usable;                   // CV_8U
   cv::Mat rho2;                     // CV_64F
-  // Per channel and EMoR term k = 1…phi_terms: K ⊗ h_k(I) (the debiased level function) and h_k(B). They do not
+  // Per channel and EMoR term k = 1…phi_terms: K ⊗ h_k(I) (debiased as `debias` says) and h_k(B). They do not
   // depend on φ or r, so they are formed once per search, not at every re-collection around a new φ.
   std::vector<std::vector<cv::Mat>> blurred_basis, basis_at_B;
 };
 
-// K ⊗ g(I) of channel c for a function f on the 1024-grid: f on I's levels, debiased, looked up, blurred.
+// K ⊗ g(I) of channel c for a function f on the 1024-grid: f on I's levels, debiased (p.debias), looked up, blurred.
 cv::Mat blurredLevelFunction(const Prepared& p, int c, std::span<const double> f, const cv::Mat& K);
 
 // Fills p.blurred_basis and p.basis_at_B for the first `phi_terms` EMoR terms.
 void blurBasis(Prepared& p, const cv::Mat& K, int phi_terms);
 
-// The samples of every channel around the given φ (curves) and exposure ratios; the level functions of the noisy
-// I are debiased (noise_debias.hpp).
+// The samples of every channel around the given φ (curves) and exposure ratios; I's level functions debiased as
+// p.debias says (only when the base fit debiases).
 std::vector<Samples> collect(const Prepared& p, const std::vector<Curve>& curves, const std::vector<double>& ratios,
                              const cv::Mat& K, const Layout& layout, const EffectOptions& options);
 
@@ -368,7 +369,7 @@ struct EffectSearch {
   Spec withSelected(const std::string& except = {}) const;  // the selected effects except `except`
 };
 
-// Reads the pair into `search` (units, debiasing, usable pixels, ρ², folds). False: too few usable pixels.
+// Reads the pair into `search` (units, I's noise, usable pixels, ρ², folds). False: too few usable pixels.
 bool prepareProblem(EffectSearch& search);
 
 // One correction + refit with the extended model `spec`: the jointly re-fitted φ_ext = φ + Σ α_k h_k and the

@@ -12,7 +12,8 @@
 //   2. held-out: the residuals of Eq. 4 around each φ as reported (no EMoR re-fit), each under the model it was
 //      fitted under (base φ and r: the seed's model; refitted φ and r: the selected extended model), the models'
 //      parameters fitted on one fold of the checkerboard and the error measured on the other, both ways (the same
-//      folds and samples as the search, effects.hpp). The refit is adopted only when its held-out error is not
+//      folds and samples as the search, effects.hpp); the refitted φ at the base fit's scale over the data
+//      (scaleToBase), a refit flat over the data rejected. The refit is adopted only when its held-out error is not
 //      larger than the base fit's: the comparison is between two fitted curves, so no threshold is needed beyond
 //      "not worse". A spatially varying blur's refit (per-tile kernels) is judged by 1. only: the residual problem
 //      holds one kernel, and its own model was tested on the same folds by its check;
@@ -25,6 +26,7 @@
 //      the base φ with the same offset explains those pixels better.
 // A rejected refit leaves the detected effects named (the report says what the data show); only its φ is not
 // reported, and the reason is recorded (EffectReport::refit_rejected_reason).
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -48,6 +50,32 @@ Problem phiAsGivenProblem(const EffectSearch& search, const std::vector<Curve>& 
 double heldoutError(const Problem& problem, const Spec& spec) {
   const Evaluation ev = problem.evaluate(spec);
   return ev.count > 0 ? ev.total / static_cast<double>(ev.count) : std::numeric_limits<double>::infinity();
+}
+
+// The refitted φ of channel c brought to the base fit's scale over the data: b φ_refit with b the least-squares factor
+// b = Σ h(v) φ_base φ_refit / Σ h(v) φ_refit² over the usable pixels' levels of B (h their histogram). Eq. 4 leaves
+// φ's scale free (φ → bφ), but the residuals' 1/φ'(B) weights are floored at min_derivative, so an error measured
+// around a curve that is nearly flat over the data (φ ≈ 0 up to the top of the data, all its rise above it) shrinks
+// with its scale: such a refit of a vivo X6S pair (`--channels g`, pair 2) had a held-out error of 8·10⁻¹² against
+// the base fit's 5·10⁻⁴ and was adopted. 0 when φ_refit vanishes over the data.
+double scaleToBase(const EffectSearch& search, int c, const std::vector<double>& base,
+                   const std::vector<double>& refit) {
+  const int n = static_cast<int>(base.size());
+  std::vector<double> histogram(static_cast<std::size_t>(n), 0.0);
+  const cv::Mat& B = search.p.B[c];
+  for (int y = 0; y < B.rows; ++y) {
+    const double* b = B.ptr<double>(y);
+    const unsigned char* use = search.p.usable.ptr<unsigned char>(y);
+    for (int x = 0; x < B.cols; ++x)
+      if (use[x]) histogram[static_cast<std::size_t>(std::lround(std::clamp(b[x], 0.0, 1.0) * (n - 1)))] += 1;
+  }
+  double cross = 0, square = 0;
+  for (std::size_t v = 0; v < histogram.size(); ++v) {
+    cross += histogram[v] * base[v] * refit[v];
+    square += histogram[v] * refit[v] * refit[v];
+  }
+  const double b = cross / square;
+  return std::isfinite(b) && b > 0 ? b : 0.0;
 }
 
 // Why the refit is physically implausible; empty when it is plausible.
@@ -96,26 +124,37 @@ void guardRefit(EffectSearch& search) {
   const EffectInputs& in = search.in;
   std::vector<Curve> base_curves, refit_curves;
   std::vector<double> base_ratios, refit_ratios;
-  for (const auto& name : in.channels) {
-    base_curves.push_back(makeCurve(in.fits.at(name).inverse_crf));
+  std::string reason;
+  for (int c = 0; c < search.nc; ++c) {
+    const std::string& name = in.channels[c];
+    const std::vector<double>& base = in.fits.at(name).inverse_crf;
+    std::vector<double> refit = report.fits.at(name).inverse_crf;
+    base_curves.push_back(makeCurve(base));
     base_ratios.push_back(in.fits.at(name).ratio);
-    refit_curves.push_back(makeCurve(report.fits.at(name).inverse_crf));
+    // Judged at the base fit's scale over the data (scaleToBase); r is unchanged by φ's scale (Eq. 4).
+    const double scale = scaleToBase(search, c, base, refit);
+    if (!(scale > 0) && reason.empty()) reason = "channel " + name + ": the refit's phi is flat over the data";
+    if (scale > 0)
+      for (double& v : refit) v *= scale;
+    refit_curves.push_back(makeCurve(std::move(refit)));
     refit_ratios.push_back(report.fits.at(name).ratio);
   }
   const Problem base_problem = phiAsGivenProblem(search, base_curves, base_ratios);
   report.heldout_error_base_fit = heldoutError(base_problem, Spec{});
   report.heldout_error_refit = heldoutError(phiAsGivenProblem(search, refit_curves, refit_ratios), search.current);
-  std::string reason = implausibility(search);
+  if (reason.empty()) reason = implausibility(search);
   // A spatially varying blur's refit is fitted per tile with the first-order kernel, which the residual problem
   // (one kernel) cannot hold: judged under the global kernel it would be judged under a model it was not fitted
   // under. Its model was itself tested on the same held-out folds (effect_spatially_varying_blur.cpp), so only the
   // plausibility checks apply to it.
   const bool own_model_comparable = !search.entry("spatially_varying_blur").detected;
-  if (reason.empty() && own_model_comparable && !(report.heldout_error_refit <= report.heldout_error_base_fit))
+  // "Not worse" up to the sums' rounding: the same curve at another scale ties with the base fit.
+  const auto notWorse = [&](double base_error) { return report.heldout_error_refit <= base_error * (1 + 1e-9); };
+  if (reason.empty() && own_model_comparable && !notWorse(report.heldout_error_base_fit))
     reason = "its phi explains the held-back pixels worse than the base fit";
   if (reason.empty() && own_model_comparable) {
     report.heldout_error_base_fit_selected_model = heldoutError(base_problem, search.current);
-    if (!(report.heldout_error_refit <= report.heldout_error_base_fit_selected_model))
+    if (!notWorse(report.heldout_error_base_fit_selected_model))
       reason = "under the same extended model the base fit's phi explains the held-back pixels better than the "
                "refitted phi: the effect, not a new phi, explains the misfit";
   }

@@ -273,8 +273,9 @@ bool refitWithSelectedModel(EffectSearch& search) {
 
 // exposure_ratio_mismatch is named from the linearised model's scale a, which re-fits φ by four EMoR terms only and
 // is a poor estimate of r on real-regime pairs (bench pairs --ratio 8, clean pairs, EXIF 8.32, truth 8: a = 12.3 and
-// 10.9 where the fitter's r is 7.89 and 7.62, docs/RESULTS.md#ratio-check-free-r; much of that gap is the search's
-// debias of I's darkest codes, docs/RESULTS.md#effects-debias). EXIF r of a real camera is good to a few per cent
+// 10.9 where the fitter's r is 7.89 and 7.62, docs/RESULTS.md#ratio-check-free-r; that gap came from the search's
+// debias of I's darkest codes, now applied only when the fit debiases, docs/RESULTS.md#effects-debias; a camera colour
+// matrix planted at r ≈ 6 still gives a 47 % off EXIF). EXIF r of a real camera is good to a few per cent
 // (issue 18), so the mismatch stays named only when the full fit of the seed's model agrees: the fitter started from
 // a with r free (the ratio-only refit when that ran; the base fit when its r was within 2 % of a) returns an r
 // beyond EXIF's tolerance on a's side. A refit with level effects is no such witness: it may trade an offset for the

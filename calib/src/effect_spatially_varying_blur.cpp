@@ -3,8 +3,8 @@
 // translation plus θ(t)·R90·(p − c), so to first order in p the kernel is K(p) = K₀ + u K_x + v K_y (u, v the
 // position relative to the centre, over the half-diagonal). Base: one kernel K₀; extended: (K₀, K_x, K_y); both
 // estimated by least squares in the irradiance domain on the same fold (support: the global kernel's, dilated
-// by one pixel) from Y = φ(B) and the debiased φ(I), residuals weighted 1/φ'(B) like every other test. Tested
-// around the selected model's φ, only when the pipeline estimated the kernel.
+// by one pixel) from Y = φ(B) and φ(I) (debiased when the base fit debiases), residuals weighted 1/φ'(B) like every
+// other test. Tested around the selected model's φ, only when the pipeline estimated the kernel.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -209,7 +209,7 @@ void run(EffectSearch& search) {
     return;
   }
   const int gi = search.g_index;
-  const cv::Mat g = [&] {  // the debiased φ(I) of the reported channel, around the selected model's φ
+  const cv::Mat g = [&] {  // φ(I) of the reported channel (p.debias), around the selected model's φ
     std::vector<double> f = onLevels(search.curves[gi].phi, search.p.levels[gi]);
     if (!search.p.debias[gi].identity()) f = search.p.debias[gi].apply(f);
     return applyTable(search.p.I[gi], f);

@@ -2,8 +2,9 @@
 // Pairs with one planted effect. The clean pair is the seed's simulation (issue 6: "one pointwise curve per channel,
 // Gaussian noise added to I only, exact r, one global kernel, no clipping, no vignetting, no black offset") made
 // from a real photograph: E = photo^2.2 scaled to a mean `exposure`; I = ψ(E) + n, n ~ N(0, sharp_sigma²) in the
-// intensity domain (Sec. 5); B = ψ(min(1, r (E ⊗ K) + n_B)) with the long exposure's small Poisson–Gaussian
-// irradiance noise n_B; both stored as 8-bit. ONE effect is then planted at a given strength s:
+// intensity domain (Sec. 5), or I = ψ(clip(E + n)) with a sensor's noise n (sharp_sensor_noise, the real regime);
+// B = ψ(min(1, r (E ⊗ K) + n_B)) with the long exposure's small Poisson–Gaussian irradiance noise n_B; both stored
+// as 8-bit. ONE effect is then planted at a given strength s:
 //   none
 //   exposure_ratio_mismatch  the EXIF ratio is off: r_EXIF = r · (1 + s)^±1 (sign from the seed)
 //   channel_mixing           B's irradiance colours are mixed before the curve (colour input):
@@ -40,12 +41,14 @@
 // value) are plantingThreshold() / thresholdReason(); tests and `crfcal bench effects` draw strengths uniformly
 // in [threshold, 2·threshold].
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include <opencv2/core.hpp>
 
 #include "crfcal/response_model.hpp"
+#include "crfcal/sensor_noise.hpp"
 
 namespace crfcal {
 
@@ -58,6 +61,11 @@ struct PlantingOptions {
   double ratio = 1.0;            // true exposure ratio r
   double exposure = 0.45;        // mean irradiance of the sharp frame (before r)
   double sharp_sigma = 0.01;     // I's intensity-domain noise std (2.6 of 255: a high-ISO short exposure)
+  // Optional: I's noise as a camera's sensor makes it (sensor_noise.hpp: a measured Poisson–Gaussian law per raw
+  // channel, e.g. a darktable profile at the short shot's ISO), added to I's irradiance before the clip and the curve,
+  // in place of sharp_sigma in the intensity domain. Unset: the seed's simulation (Sec. 5). A planted
+  // signal_dependent_noise keeps its intensity-domain law. Grey photos take the green channel's law.
+  std::optional<SensorNoise> sharp_sensor_noise;
   double noise_gain_blurred = 2e-5;  // B: Poisson part of the irradiance noise (variance = gain · E)
   double read_noise_blurred = 1e-6;  // B: Gaussian part (variance)
   double shift_x = 0, shift_y = 0, rotation_deg = 0;  // handheld misregistration of B (registration's job)

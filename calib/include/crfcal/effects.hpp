@@ -7,9 +7,12 @@
 //   e_p = (φ(B_p) − Ŷ_p) / φ'(B_p),   base model Ŷ = a · (g(I) ⊗ K)(p)  (a = the exposure ratio, free)
 // on a regular subsample of the usable pixels of the fit window (flat and edge pixels alike; B's stored values within
 // twice their rounding's σ of saturation_high — the 8-bit code 254 — count as saturated: a clipped highlight that JPEG
-// or resampling moved just below full scale is saturation, not the clipping effect); g = R φ the level
-// function debiased for I's noise (noise_debias.hpp), so that Jensen's bias and the clip of the noise at 0 do not
-// pose as an offset. φ is re-fitted jointly with every model (base included: the comparison is fair and nested):
+// or resampling moved just below full scale is saturation, not the clipping effect); g = φ as the base fit reads
+// I: debiased for I's noise (g = R φ, noise_debias.hpp) only when the fit debiases (NoiseHandling::debias). A camera's
+// noise enters the irradiance before the curve: φ(I) = clip(E + n) has no Jensen bias, only the clip at black that
+// the fitter censors. The intensity-domain debias under the fitter's default named false offsets on clean
+// real-regime pairs (docs/RESULTS.md#effects-debias). A noisy I's black and white are read by region (5×5 median), as
+// in the fitter. φ is re-fitted jointly with every model (base included: the comparison is fair and nested):
 // φ = φ̂ + Σ α_k h_k over the first `phi_terms` EMoR basis curves h_k, with φ'(B) in the residual following the
 // re-fit (Levenberg–Marquardt; a fixed 1/φ̂' would let a re-fit "explain" everything by flattening φ), so an effect
 // that the base fit absorbed into φ (an offset bends φ by ≈ c / (r − 1)) is still visible.
@@ -47,7 +50,7 @@
 // the free r no significant held-out drop against it is named instead (EffectEntry::explained_by). And the full fit of
 // the seed's model must agree: started from a with r free, the fitter returns an r beyond ratio_tolerance on a's side
 // of r_EXIF, else the name is withdrawn (parameters "full_fit_ratio", "not_confirmed_by_full_fit"; the linearised a
-// re-fits φ by phi_terms EMoR curves only and strays far from the fitter's r on noisy real-regime pairs).
+// re-fits φ by phi_terms EMoR curves only and can stray far from the fitter's r, e.g. beside a camera colour matrix).
 // signal_dependent_noise is tested on I itself (its noise is what the seed models; in the residuals above it is
 // averaged by the kernel and hidden under B's quantisation): Immerkær's residual (noise_estimation.hpp) in each of
 // `noise_bins` level bins (equal counts of I's 5×5 local mean), on the 30 % of each bin with the least 7×7 residual
