@@ -13,7 +13,7 @@
 //      fitted under (base φ and r: the seed's model; refitted φ and r: the selected extended model), the models'
 //      parameters fitted on one fold of the checkerboard and the error measured on the other, both ways (the same
 //      folds and samples as the search, effects.hpp); the refitted φ at the base fit's scale over the data
-//      (scaleToBase), a refit flat over the data rejected. The refit is adopted only when its held-out error is not
+//      (scaleToBase, one factor for all channels), a refit flat over the data rejected. The refit is adopted only when its held-out error is not
 //      larger than the base fit's: the comparison is between two fitted curves, so no threshold is needed beyond
 //      "not worse". A spatially varying blur's refit (per-tile kernels) is judged by 1. only: the residual problem
 //      holds one kernel, and its own model was tested on the same folds by its check;
@@ -52,14 +52,13 @@ double heldoutError(const Problem& problem, const Spec& spec) {
   return ev.count > 0 ? ev.total / static_cast<double>(ev.count) : std::numeric_limits<double>::infinity();
 }
 
-// The refitted φ of channel c brought to the base fit's scale over the data: b φ_refit with b the least-squares factor
-// b = Σ h(v) φ_base φ_refit / Σ h(v) φ_refit² over the usable pixels' levels of B (h their histogram). Eq. 4 leaves
-// φ's scale free (φ → bφ), but the residuals' 1/φ'(B) weights are floored at min_derivative, so an error measured
-// around a curve that is nearly flat over the data (φ ≈ 0 up to the top of the data, all its rise above it) shrinks
-// with its scale: such a refit of a vivo X6S pair (`--channels g`, pair 2) had a held-out error of 8·10⁻¹² against
-// the base fit's 5·10⁻⁴ and was adopted. 0 when φ_refit vanishes over the data.
-double scaleToBase(const EffectSearch& search, int c, const std::vector<double>& base,
-                   const std::vector<double>& refit) {
+// Σ h(v) φ_base(v) φ_refit(v) and Σ h(v) φ_refit(v)² of channel c over the usable pixels' levels of B (h their
+// histogram): the terms of the least-squares factor that brings the refit to the base fit's scale (scaleToBase).
+struct ScaleSums {
+  double cross = 0, square = 0;
+};
+ScaleSums scaleSums(const EffectSearch& search, int c, const std::vector<double>& base,
+                    const std::vector<double>& refit) {
   const int n = static_cast<int>(base.size());
   std::vector<double> histogram(static_cast<std::size_t>(n), 0.0);
   const cv::Mat& B = search.p.B[c];
@@ -69,13 +68,35 @@ double scaleToBase(const EffectSearch& search, int c, const std::vector<double>&
     for (int x = 0; x < B.cols; ++x)
       if (use[x]) histogram[static_cast<std::size_t>(std::lround(std::clamp(b[x], 0.0, 1.0) * (n - 1)))] += 1;
   }
-  double cross = 0, square = 0;
+  ScaleSums sums;
   for (std::size_t v = 0; v < histogram.size(); ++v) {
-    cross += histogram[v] * base[v] * refit[v];
-    square += histogram[v] * refit[v] * refit[v];
+    sums.cross += histogram[v] * base[v] * refit[v];
+    sums.square += histogram[v] * refit[v] * refit[v];
   }
-  const double b = cross / square;
-  return std::isfinite(b) && b > 0 ? b : 0.0;
+  return sums;
+}
+
+// The refitted curves brought to the base fits' scale over the data: every φ_refit times one factor b, the least-squares
+// fit of b φ_refit to φ_base over the usable pixels' levels of B, pooled over the channels. Eq. 4 leaves φ's scale
+// free (φ → bφ; with a colour mix, one b for all channels), but the residuals' 1/φ'(B) weights are floored at
+// min_derivative, so an error measured around a curve that is nearly flat over the data (φ ≈ 0 up to the top of the
+// data, all its rise above it) shrinks with its scale: such a refit of a vivo X6S pair (`--channels g`, pair 2) had a
+// held-out error of 8·10⁻¹² against the base fit's 5·10⁻⁴ and was adopted. Empty names: every channel rises over the
+// data; else the first channel whose refit is flat there.
+std::string scaleToBase(const EffectSearch& search, std::vector<std::vector<double>>& refits) {
+  const EffectInputs& in = search.in;
+  ScaleSums pooled;
+  for (int c = 0; c < search.nc; ++c) {
+    const ScaleSums sums = scaleSums(search, c, in.fits.at(in.channels[c]).inverse_crf, refits[c]);
+    if (!(sums.square > 0)) return in.channels[c];
+    pooled.cross += sums.cross;
+    pooled.square += sums.square;
+  }
+  const double b = pooled.cross / pooled.square;
+  if (!(std::isfinite(b) && b > 0)) return in.channels.front();
+  for (auto& refit : refits)
+    for (double& v : refit) v *= b;
+  return {};
 }
 
 // Why the refit is physically implausible; empty when it is plausible.
@@ -124,21 +145,17 @@ void guardRefit(EffectSearch& search) {
   const EffectInputs& in = search.in;
   std::vector<Curve> base_curves, refit_curves;
   std::vector<double> base_ratios, refit_ratios;
-  std::string reason;
-  for (int c = 0; c < search.nc; ++c) {
-    const std::string& name = in.channels[c];
-    const std::vector<double>& base = in.fits.at(name).inverse_crf;
-    std::vector<double> refit = report.fits.at(name).inverse_crf;
-    base_curves.push_back(makeCurve(base));
+  std::vector<std::vector<double>> refits;
+  for (const auto& name : in.channels) {
+    base_curves.push_back(makeCurve(in.fits.at(name).inverse_crf));
     base_ratios.push_back(in.fits.at(name).ratio);
-    // Judged at the base fit's scale over the data (scaleToBase); r is unchanged by φ's scale (Eq. 4).
-    const double scale = scaleToBase(search, c, base, refit);
-    if (!(scale > 0) && reason.empty()) reason = "channel " + name + ": the refit's phi is flat over the data";
-    if (scale > 0)
-      for (double& v : refit) v *= scale;
-    refit_curves.push_back(makeCurve(std::move(refit)));
+    refits.push_back(report.fits.at(name).inverse_crf);
     refit_ratios.push_back(report.fits.at(name).ratio);
   }
+  // Judged at the base fits' scale over the data (scaleToBase); r is unchanged by φ's scale (Eq. 4).
+  const std::string flat = scaleToBase(search, refits);
+  std::string reason = flat.empty() ? "" : "channel " + flat + ": the refit's phi is flat over the data";
+  for (auto& refit : refits) refit_curves.push_back(makeCurve(std::move(refit)));
   const Problem base_problem = phiAsGivenProblem(search, base_curves, base_ratios);
   report.heldout_error_base_fit = heldoutError(base_problem, Spec{});
   report.heldout_error_refit = heldoutError(phiAsGivenProblem(search, refit_curves, refit_ratios), search.current);
