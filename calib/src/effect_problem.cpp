@@ -682,7 +682,7 @@ void readChannels(EffectSearch& search) {
     // enters the irradiance before the curve, where φ(I) = clip(φ(c) + n) carries no Jensen bias, only the clip at
     // black that the fit censors by region. The intensity-domain law of the debias (the seed's simulation, Sec. 5)
     // lowered K ⊗ φ(I) where the sharp shot holds its darkest codes and named false offsets on clean real-regime
-    // pairs, even with the sharp shot's true noise per level (docs/RESULTS.md#effects-debias).
+    // pairs, even with the sharp shot's measured noise per level (two St. Louis pairs, docs/RESULTS.md#effects-debias).
     NoiseDebiasOptions dopt;
     dopt.levels = L;
     if (p.noisy.back() && in.fit.experimental.noise == NoiseHandling::debias) dopt.sigma = std::min(sigma, 0.5);

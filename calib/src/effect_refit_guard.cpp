@@ -13,10 +13,10 @@
 //      fitted under (base φ and r: the seed's model; refitted φ and r: the selected extended model), the models'
 //      parameters fitted on one fold of the checkerboard and the error measured on the other, both ways (the same
 //      folds and samples as the search, effects.hpp); the refitted φ at the base fit's scale over the data
-//      (scaleToBase, one factor for all channels), a refit flat over the data rejected. The refit is adopted only when its held-out error is not
-//      larger than the base fit's: the comparison is between two fitted curves, so no threshold is needed beyond
-//      "not worse". A spatially varying blur's refit (per-tile kernels) is judged by 1. only: the residual problem
-//      holds one kernel, and its own model was tested on the same folds by its check;
+//      (scaleToBase, one factor for all channels), a refit flat over the data rejected. The refit is adopted only
+//      when its held-out error is not larger than the base fit's: the comparison is between two fitted curves, so
+//      no threshold is needed beyond "not worse". A spatially varying blur's refit (per-tile kernels) is judged by
+//      1. only: the residual problem holds one kernel, and its own model was tested on the same folds by its check;
 //   3. the same model: the refitted φ and r against the base fit's φ and r, both under the selected extended model
 //      (its parameters fitted on one fold, measured on the other). Test 2 compares two models: a real effect makes
 //      the extended one win whatever its φ. This one compares two φ under one model, so the refit is adopted only
