@@ -139,8 +139,8 @@ TEST(EffectAttribution, CleanUnderexposedJpegPairNamesNoEffect) {
 // its irradiance before the curve as a sensor does; Sony A100 curve, Levin kernel 3, handheld, 4:2:0 JPEG; EXIF 4 %
 // off the truth as every bench pair's). The effect search used to debias I's level functions with one intensity-domain
 // σ although the base fit it tests does not: K ⊗ φ(I) fell where the sharp shot holds its darkest codes and this pair
-// was named black_level_offset (its refit then traded the offset for the exponent, r 3.05; before the full fit had to
-// confirm it, exposure_ratio_mismatch too). The search now reads I's noise as the fit does
+// was named black_level_offset (its refit traded the offset for the exponent, r 3.05, and was rejected; before the
+// full fit had to confirm it, exposure_ratio_mismatch too). The search now reads I's noise as the fit does
 // (docs/RESULTS.md#effects-debias).
 TEST(EffectAttribution, CleanRealRegimePairsDarkestCodesAreNotNamedAnOffset) {
   namespace fs = std::filesystem;
