@@ -43,16 +43,8 @@ EffectReport diagnose(const PlantingOptions& po, const std::string& camera, int 
   }
   CrfFitOptions fo;
   fo.nominal_ratio = pair.exif_ratio;
-  EffectInputs in;
-  in.channels = {"G"};
-  in.sharp["G"] = pair.sharp;
-  in.blurred["G"] = pair.blurred;
-  in.fits["G"] = fitInverseCrf(pair.sharp, pair.blurred, K, fo);
-  if (ratio_out) *ratio_out = in.fits["G"].ratio;
-  in.kernel = K;
-  in.kernel_estimated = false;
-  in.nominal_ratio = pair.exif_ratio;
-  in.fit = fo;
+  const EffectInputs in = test::greenEffectInputs(pair.sharp, pair.blurred, K, fo);
+  if (ratio_out) *ratio_out = in.fits.at("G").ratio;
   return diagnoseEffects(in);
 }
 

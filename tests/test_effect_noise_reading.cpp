@@ -34,14 +34,7 @@ struct NoiseReading {
     CrfFitOptions fo;
     fo.nominal_ratio = pair.exif_ratio;
     fo.experimental.noise = noise;
-    in.channels = {"G"};
-    in.sharp["G"] = pair.sharp;
-    in.blurred["G"] = pair.blurred;
-    in.fits["G"] = fitInverseCrf(pair.sharp, pair.blurred, K, fo);
-    in.kernel = K;
-    in.kernel_estimated = false;
-    in.nominal_ratio = pair.exif_ratio;
-    in.fit = fo;
+    in = test::greenEffectInputs(pair.sharp, pair.blurred, K, fo);
   }
 };
 

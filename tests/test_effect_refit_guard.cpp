@@ -31,20 +31,6 @@ cv::Mat photoPair() {
   return out;
 }
 
-// The diagnostics' inputs for the green channel of a planted pair with a known kernel, its base fit under `fit`.
-EffectInputs greenInputs(const PlantedPair& pair, const cv::Mat& K, const CrfFitOptions& fit, double nominal_ratio) {
-  EffectInputs in;
-  in.channels = {"G"};
-  in.sharp["G"] = pair.sharp;
-  in.blurred["G"] = pair.blurred;
-  in.fits["G"] = fitInverseCrf(pair.sharp, pair.blurred, K, fit);
-  in.kernel = K;
-  in.kernel_estimated = false;
-  in.nominal_ratio = nominal_ratio;
-  in.fit = fit;
-  return in;
-}
-
 struct GuardCase {
   EffectReport report;
   double base_ratio = 0;
@@ -63,7 +49,7 @@ GuardCase ratioAgainstExif() {
   CrfFitOptions held;
   held.nominal_ratio = 1.25;
   held.fit_ratio = false;
-  EffectInputs in = greenInputs(pair, K, held, 1.25);
+  EffectInputs in = test::greenEffectInputs(pair.sharp, pair.blurred, K, held);
   in.fit.fit_ratio = true;  // the refit may move r: the guard must judge where it goes
   GuardCase c;
   c.base_ratio = in.fits["G"].ratio;
@@ -103,7 +89,7 @@ struct PlantedOffset {
     true_ratio = pair.true_ratio;
     CrfFitOptions fo;
     fo.nominal_ratio = pair.exif_ratio;
-    in = greenInputs(pair, K, fo, pair.exif_ratio);
+    in = test::greenEffectInputs(pair.sharp, pair.blurred, K, fo);
   }
 };
 
@@ -167,7 +153,7 @@ EffectReport guardedRefit(Reshape reshape) {
   const PlantedPair pair = plantEffect(photoPair(), truth, K, po);
   CrfFitOptions fo;
   fo.nominal_ratio = pair.exif_ratio;
-  const EffectInputs in = greenInputs(pair, K, fo, pair.exif_ratio);
+  const EffectInputs in = test::greenEffectInputs(pair.sharp, pair.blurred, K, fo);
   const EffectOptions options;
   effect::EffectSearch search(in, options);
   EXPECT_TRUE(effect::prepareProblem(search));

@@ -27,6 +27,20 @@ cv::Mat levinImage(int index) { return io::readGrayUnit(samples() / "levin09" / 
 
 cv::Mat levinKernel(int index) { return io::kernelFromSpec("levin:" + std::to_string(index)); }
 
+EffectInputs greenEffectInputs(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& K,
+                               const CrfFitOptions& fit) {
+  EffectInputs in;
+  in.channels = {"G"};
+  in.sharp["G"] = sharp;
+  in.blurred["G"] = blurred;
+  in.fits["G"] = fitInverseCrf(sharp, blurred, K, fit);
+  in.kernel = K;
+  in.kernel_estimated = false;
+  in.nominal_ratio = fit.nominal_ratio;
+  in.fit = fit;
+  return in;
+}
+
 SimulationResult gammaPairAtRatio4() {
   SimulationOptions sim;
   sim.ratio = 4;

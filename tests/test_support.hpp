@@ -5,6 +5,8 @@
 
 #include <opencv2/core.hpp>
 
+#include "crfcal/crf_fitter.hpp"
+#include "crfcal/effects.hpp"
 #include "crfcal/ratio_evidence.hpp"
 #include "crfcal/simulation.hpp"
 
@@ -22,6 +24,10 @@ SimulationResult gammaPairAtRatio4();
 // 8 (σ_nominal), the images' r e^{log_difference} times EXIF's: the inputs of the band's ratio-term tests.
 RatioEvidence combinedRatioEvidence(double images_sigma, double resampled_sigma, double nominal_sigma,
                                     double log_difference);
+// The effect diagnostics' inputs for the green channel of a grey pair with a given kernel K: its base fit under
+// `fit`, EXIF's r = fit.nominal_ratio.
+EffectInputs greenEffectInputs(const cv::Mat& sharp, const cv::Mat& blurred, const cv::Mat& K,
+                               const CrfFitOptions& fit);
 
 // OpenCV's thread count (and so crfcal's job arena) set for a scope and restored when it ends, also on a failed
 // assertion.
