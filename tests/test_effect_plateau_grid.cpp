@@ -7,11 +7,12 @@
 #include <limits>
 #include <random>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
 
-#include "../calib/src/effect_problem.hpp"
+#include "effect_problem_support.hpp"
 #include "crfcal/emor.hpp"
 
 namespace crfcal::effect {
@@ -32,14 +33,9 @@ Samples plateauSamples(double ratio, double plateau, unsigned seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> irradiance(0.02, 0.95 / ratio);
   std::normal_distribution<double> noise(0.0, 0.004);
-  Samples s;
-  s.X.resize(1);
-  s.P.resize(kTerms);
-  s.Dh.resize(kTerms);
-  s.Hb.resize(kTerms);
-  s.KH.resize(kTerms);
-  s.phi.resize(emor::kSamples);
-  for (int i = 0; i < emor::kSamples; ++i) s.phi[i] = double(i) / (emor::kSamples - 1);
+  std::vector<double> phi(emor::kSamples);
+  for (int i = 0; i < emor::kSamples; ++i) phi[i] = double(i) / (emor::kSamples - 1);
+  Samples s = emptySamples(1, kTerms, std::move(phi));
   for (int i = 0; i < 6000; ++i) {
     const double x = irradiance(rng);
     const double b = std::clamp(std::min(ratio * x, plateau) + noise(rng), 0.0, 1.0);
@@ -62,28 +58,21 @@ Samples plateauSamples(double ratio, double plateau, unsigned seed) {
       s.P[k].push_back(ratio * lookup(h, x) - lookup(h, b));
     }
   }
+  groupByWeight(s);  // as collect() does: the LM factorises the samples per level of B
   return s;
-}
-
-double inSampleError(const Problem& problem, const Spec& spec, const ChannelFit& f) {
-  const Samples& s = problem.samples()[0];
-  double error = 0;
-  for (std::size_t i = 0; i < s.size(); ++i) error += std::pow(problem.residual(s, i, spec, f), 2);
-  return error;
 }
 
 // The exhaustive grid as before stop 33: every level fitted to the full tolerance from the linear start, the lowest
 // in-sample error (the coarser level on a tie).
 ChannelFit exhaustiveBest(const Problem& problem, const Spec& spec) {
   const Samples& s = problem.samples()[0];
-  std::vector<std::size_t> idx(s.size());
-  for (std::size_t i = 0; i < idx.size(); ++i) idx[i] = i;
+  const std::vector<std::size_t> idx = test::allSamples(s);
   ChannelFit best;
   double best_error = std::numeric_limits<double>::infinity();
   for (double clip : plateauGrid(s, idx)) {
     const ChannelFit f = problem.fitLevel(s, spec, idx, clip);
     if (!f.ok) continue;
-    const double error = inSampleError(problem, spec, f);
+    const double error = test::inSampleError(problem, spec, f);
     if (error < best_error) {
       best_error = error;
       best = f;
@@ -106,7 +95,7 @@ void expectSameChoiceAsExhaustiveGrid(double ratio, double plateau, unsigned see
   ASSERT_EQ(searched.theta.size(), exhaustive.theta.size());
   for (Eigen::Index k = 0; k < searched.theta.size(); ++k)
     EXPECT_EQ(searched.theta(k), exhaustive.theta(k)) << "coefficient " << k << ", plateau " << plateau;
-  EXPECT_EQ(inSampleError(problem, spec, searched), inSampleError(problem, spec, exhaustive));
+  EXPECT_EQ(test::inSampleError(problem, spec, searched), test::inSampleError(problem, spec, exhaustive));
 }
 
 TEST(EffectPlateauGrid, CoarseToFineSearchChoosesThePlantedPlateauLikeTheExhaustiveGrid) {

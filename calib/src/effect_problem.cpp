@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <exception>
 #include <limits>
+#include <map>
 
 #include "crfcal/blur_model.hpp"
 #include "crfcal/crf_fitter.hpp"
@@ -12,7 +13,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
 #include "crfcal/noise_estimation.hpp"
-#include "gram_products.hpp"
+#include "effect_grouped_residuals.hpp"
 #include "noise_debias_cache.hpp"
 #include "parallel_jobs.hpp"
 
@@ -200,15 +201,8 @@ std::vector<Samples> collect(const Prepared& p, const std::vector<Curve>& curves
       std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(usable) / options.max_samples))));
   const int bx = (p.usable.cols + options.block - 1) / options.block;
   const int fine = std::max(1, options.block / 2), fbx = (p.usable.cols + fine - 1) / fine;
-  std::vector<Samples> out(nc);
-  for (int c = 0; c < nc; ++c) {
-    out[c].X.resize(nc);
-    out[c].P.resize(li.P[c].size());
-    out[c].Dh.resize(li.P[c].size());
-    out[c].Hb.resize(li.P[c].size());
-    out[c].KH.resize(li.P[c].size());
-    out[c].phi = curves[c].phi;
-  }
+  std::vector<Samples> out;
+  for (int c = 0; c < nc; ++c) out.push_back(emptySamples(nc, static_cast<int>(li.P[c].size()), curves[c].phi));
   const std::vector<std::vector<double>> slope = basisSlopes(options.phi_terms);
   // A regular subsample of the usable pixels, every other row shifted by half the stride.
   for (int y = 0; y < p.usable.rows; y += stride) {
@@ -240,7 +234,28 @@ std::vector<Samples> collect(const Prepared& p, const std::vector<Curve>& curves
       }
     }
   }
+  for (Samples& s : out) groupByWeight(s);
   return out;
+}
+
+Samples emptySamples(int channels, int phi_terms, std::vector<double> phi) {
+  Samples s;
+  s.X.resize(static_cast<std::size_t>(channels));
+  for (auto* columns : {&s.P, &s.Dh, &s.Hb, &s.KH}) columns->resize(static_cast<std::size_t>(phi_terms));
+  s.phi = std::move(phi);
+  return s;
+}
+
+void groupByWeight(Samples& s) {
+  std::map<std::vector<double>, int> ids;
+  std::vector<double> key(1 + s.Dh.size());
+  s.weight_group.resize(s.size());
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    key[0] = s.d[i];
+    for (std::size_t k = 0; k < s.Dh.size(); ++k) key[k + 1] = s.Dh[k][i];
+    s.weight_group[i] = ids.try_emplace(key, static_cast<int>(ids.size())).first->second;
+  }
+  s.weight_groups = static_cast<int>(ids.size());
 }
 
 // ---- the residual model --------------------------------------------------------------------------------------------
@@ -295,61 +310,51 @@ Eigen::VectorXd Problem::linearStart(const Samples& s, const Spec& spec, const s
   return theta;
 }
 
-// Levenberg–Marquardt on r_i = w_i(θ) (t_i − c_i·θ): w depends on the φ re-fit through φ'(B).
-// With `state`, a run stopped by a `tolerance` above kFitTolerance can be run on later from θ and `state` through the
-// same passes as one run to kFitTolerance (the residuals at θ are recomputed to the same bits).
+// Levenberg–Marquardt on r_i = w_i(θ) (t_i − c_i·θ): w depends on the φ re-fit through φ'(B). The samples are
+// factorised once per run and weight group (effect_grouped_residuals.hpp), so every pass costs O(groups · cols²)
+// instead of O(samples · cols²), in the search's hundreds of fits per pair. With `state`, a run stopped by a `tolerance` above kFitTolerance can be run on later from θ and `state` through the
+// same passes as one run to kFitTolerance.
 void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
                                  Eigen::VectorXd& theta, const DesignRows* rows, double tolerance,
                                  LmState* state) const {
   const int cols = static_cast<int>(theta.size());
   const int terms = static_cast<int>(s.Dh.size());
-  const Eigen::Index n = static_cast<Eigen::Index>(use.size());
-  // The design rows c_i, the targets t_i, φ̂'(B) and the φ terms' derivatives do not depend on θ: gathered once,
-  // so that every pass below is a few matrix products (the search runs hundreds of these fits per pair).
-  Eigen::MatrixXd C(n, cols), Dh(n, terms);
-  Eigen::VectorXd target(n), d0(n);
-  double buffer[48];
-  for (Eigen::Index k = 0; k < n; ++k) {
-    const std::size_t i = use[static_cast<std::size_t>(k)];
-    double t = 0;
-    const double* x = designRow(s, i, spec, rows, buffer, t);
-    for (int a = 0; a < cols; ++a) C(k, a) = x[a];
-    target(k) = t;
-    d0(k) = s.d[i];
-    for (int j = 0; j < terms; ++j) Dh(k, j) = s.Dh[static_cast<std::size_t>(j)][i];
+  const bool grouped = s.weight_group.size() == s.size();  // else each sample is its own group
+  // Each used sample's group, numbered in order of first use (every sample its own without groups), and the sizes.
+  std::vector<int> compact(grouped ? static_cast<std::size_t>(s.weight_groups) : 0, -1), group_of(use.size());
+  std::vector<std::size_t> first;
+  std::vector<int> size;
+  for (std::size_t k = 0; k < use.size(); ++k) {
+    int* id = grouped ? &compact[static_cast<std::size_t>(s.weight_group[use[k]])] : nullptr;
+    if (!id || *id < 0) {
+      if (id) *id = static_cast<int>(first.size());
+      group_of[k] = static_cast<int>(first.size());
+      first.push_back(use[k]);
+      size.push_back(0);
+    } else {
+      group_of[k] = *id;
+    }
+    ++size[static_cast<std::size_t>(group_of[k])];
   }
-  // r = w (t − Cθ) with w = 1 / max(φ̂'(B) + Σ α_k h_k'(B), min_derivative) (weight()).
-  Eigen::VectorXd d(n), w(n), r(n);
-  const auto residuals = [&](const Eigen::VectorXd& th) {
-    d.noalias() = d0 + Dh * th.tail(terms);
-    w = d.cwiseMax(min_derivative_).cwiseInverse();
-    r = w.cwiseProduct(target - C * th);
-    return r.squaredNorm();
-  };
+  GroupedResiduals residuals(cols, terms, min_derivative_);
+  double buffer[48], slope[48];
+  for (std::size_t g = 0; g < first.size(); ++g) {
+    for (int j = 0; j < terms; ++j) slope[j] = s.Dh[static_cast<std::size_t>(j)][first[g]];
+    residuals.addGroup(s.d[first[g]], slope, size[g]);
+  }
+  for (std::size_t k = 0; k < use.size(); ++k) {
+    double t = 0;
+    const double* x = designRow(s, use[k], spec, rows, buffer, t);
+    residuals.add(group_of[k], x, t);
+  }
   LmState own;
   LmState& st = state ? *state : own;
   st.finished = true;  // unless paused below
-  double mu = st.mu, current = residuals(theta);
-  Eigen::MatrixXd J(n, cols);
-  const detail::VectorUnits vector_units = detail::widestVectorUnits();
+  double mu = st.mu, current = residuals.evaluate(theta);
+  Eigen::MatrixXd JtJ;
+  Eigen::VectorXd Jtr;
   for (int iteration = st.iteration; iteration < kFitPasses; ++iteration) {
-    // J = ∂r/∂θ: −w c_i, and through w the φ terms' −r w h_k'(B) where the derivative is not floored.
-    const Eigen::VectorXd unfloored = (d.array() >= min_derivative_).cast<double>().matrix();
-    // −w_i c_i, column by column (the same products as −(diag(w) C); Eigen's expression spilled a register per
-    // element here, and this loop runs on every pass of hundreds of fits)
-    for (int a = 0; a < cols; ++a) {
-      const double* c_col = C.col(a).data();
-      const double* w_data = w.data();
-      double* j_col = J.col(a).data();
-      for (Eigen::Index k = 0; k < n; ++k) j_col[k] = -(w_data[k] * c_col[k]);
-    }
-    J.rightCols(terms).noalias() -= (r.cwiseProduct(w).cwiseProduct(unfloored)).asDiagonal() * Dh;
-    // JᵀJ in AVX2 + FMA where the CPU has them (gram_products.hpp; Eigen's baseline product was a sixth of a phone
-    // pair's CPU time here)
-    Eigen::MatrixXd JtJ = Eigen::MatrixXd::Zero(cols, cols);
-    detail::addLowerGram(J.data(), static_cast<int>(n), cols, static_cast<int>(n), JtJ.data(), vector_units);
-    JtJ = JtJ.selfadjointView<Eigen::Lower>();
-    const Eigen::VectorXd Jtr = J.transpose() * r;
+    residuals.normalEquations(JtJ, Jtr);
     bool improved = false;
     for (int attempt = 0; attempt < 6 && !improved; ++attempt) {
       Eigen::MatrixXd H = JtJ;
@@ -357,7 +362,7 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
       const Eigen::VectorXd step = H.ldlt().solve(-Jtr);
       if (!step.allFinite()) break;
       const Eigen::VectorXd next = theta + step;
-      const double c = residuals(next);  // d, w, r now at `next`: the next iteration linearises there if kept
+      const double c = residuals.evaluate(next);  // the groups now at `next`: the next pass linearises there if kept
       if (c < current) {
         improved = true;
         const double drop = (current - c) / std::max(current, 1e-300);

@@ -95,8 +95,18 @@ struct Samples {
   std::vector<std::vector<double>> P;  // φ columns a₀ K⊗h_k(I) − h_k(B) (EMoR basis h_k)
   std::vector<std::vector<double>> KH; // K⊗h_k(I): how this channel's X moves with its φ re-fit (mixing)
   std::vector<cv::Point> pos;
+  // Samples with the same φ̂'(B) and h_k'(B) (the same level of B) share the LM's weight: their group (groupByWeight;
+  // empty: each sample alone), and the number of groups.
+  std::vector<int> weight_group;
+  int weight_groups = 0;
   std::size_t size() const { return Y.size(); }
 };
+
+// No samples yet, of one channel among `channels`, with `phi_terms` φ columns, around φ̂ (`phi`, the 1024-grid).
+Samples emptySamples(int channels, int phi_terms, std::vector<double> phi);
+
+// Fills s.weight_group / s.weight_groups from d and Dh (exact equality); collect() calls it.
+void groupByWeight(Samples& s);
 
 // The pair in unit levels, with what the residuals need beside φ.
 struct Prepared {
