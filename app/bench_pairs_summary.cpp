@@ -30,17 +30,21 @@ std::string bandSummaryTable(const std::map<double, BandSummary>& by_ratio) {
          "true phi lies inside the band. absolute: the truth as it is against [lower, upper] (phi(1) = 1; the band "
          "carries the scale's uncertainty); shape: inside the covered range, the truth times its best common scale "
          "a (least squares onto the fit over the covered range) against fit +- shape half-width (half-sample spread and the other candidate model, no scale part). "
+         "Above covered, farther half: the samples of each case's [covered top, 1] nearer x = 1 (the nearer half "
+         "has the rest). "
          "Widths: median over cases of each case's median over the covered range.\n"
-      << "| r | cases | absolute inside covered | absolute above covered | absolute below covered | shape inside "
-         "covered | median width inside (absolute) | median width inside (shape) | median abs(a - 1) | band s / "
-         "calibration s |\n"
-      << "|---|---|---|---|---|---|---|---|---|---|\n";
+      << "| r | cases | absolute inside covered | absolute above covered | above: nearer half | above: farther half | "
+         "absolute below covered | shape inside covered | median width inside (absolute) | median width inside "
+         "(shape) | median abs(a - 1) | band s / calibration s |\n"
+      << "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& [ratio, b] : by_ratio) {
     if (b.cases == 0) continue;
     char line[600];
-    std::snprintf(line, sizeof line, "| %.2f | %d | %s | %s | %s | %s | %.4f | %.4f | %.4f | %.0f / %.0f |\n", ratio,
-                  b.cases, percent(b.pooled.inside_hits, b.pooled.inside).c_str(),
+    std::snprintf(line, sizeof line, "| %.2f | %d | %s | %s | %s | %s | %s | %s | %.4f | %.4f | %.4f | %.0f / %.0f |\n",
+                  ratio, b.cases, percent(b.pooled.inside_hits, b.pooled.inside).c_str(),
                   percent(b.pooled.above_hits, b.pooled.above).c_str(),
+                  percent(b.pooled.above_hits - b.pooled.above_far_hits, b.pooled.above - b.pooled.above_far).c_str(),
+                  percent(b.pooled.above_far_hits, b.pooled.above_far).c_str(),
                   percent(b.pooled.below_hits, b.pooled.below).c_str(),
                   percent(b.pooled.shape_hits, b.pooled.inside).c_str(), medianOf(b.widths), medianOf(b.shape_widths),
                   medianOf(b.scale_errors), b.band_seconds, b.seconds);

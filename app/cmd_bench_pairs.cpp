@@ -397,7 +397,8 @@ struct PairsRun {
       s.band = scoreBand(band, r.fits.at("G").inverse_crf, sampleInverse(c.truth));
       s.band_seconds = band.seconds;
       row["band_G"] = {{"inside", s.band->inside}, {"inside_hits", s.band->inside_hits}, {"above", s.band->above},
-                       {"above_hits", s.band->above_hits}, {"below", s.band->below}, {"below_hits", s.band->below_hits},
+                       {"above_hits", s.band->above_hits}, {"above_far", s.band->above_far},
+                       {"above_far_hits", s.band->above_far_hits}, {"below", s.band->below}, {"below_hits", s.band->below_hits},
                        {"shape_hits", s.band->shape_hits}, {"truth_scale", s.band->truth_scale},
                        {"median_width_inside", s.band->median_width_inside},
                        {"median_shape_width_inside", s.band->median_shape_width_inside},
@@ -470,6 +471,7 @@ struct PairsRun {
       ++b.cases;
       b.pooled.inside += s.band->inside, b.pooled.inside_hits += s.band->inside_hits;
       b.pooled.above += s.band->above, b.pooled.above_hits += s.band->above_hits;
+      b.pooled.above_far += s.band->above_far, b.pooled.above_far_hits += s.band->above_far_hits;
       b.pooled.below += s.band->below, b.pooled.below_hits += s.band->below_hits;
       b.pooled.shape_hits += s.band->shape_hits;
       b.widths.push_back(s.band->median_width_inside);

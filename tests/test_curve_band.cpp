@@ -134,6 +134,25 @@ TEST(CurveBand, AboveTheDataTheBandBoundsTheExponentAndHoldsTheFit) {
   EXPECT_THROW(odd.check(), InvalidInput);
 }
 
+// The score counts the samples above the data in two halves, so that misses piled up near x = 1 show beside a
+// pooled rate that a long stretch of easy samples near the data can dilute.
+TEST(CurveBand, ScoreSplitsTheSamplesAboveTheDataIntoTheNearerAndTheFartherHalf) {
+  const std::vector<double> phi = gammaCurve(2.2);
+  const CurveBand band = bandFromReplicates(phi, {}, {0.05, 0.6});
+  std::vector<double> truth = phi;
+  BandScore score = scoreBand(band, phi, truth);
+  ASSERT_GT(score.above, 100);
+  EXPECT_LE(std::abs(2 * score.above_far - score.above), 1);
+  EXPECT_EQ(score.above_hits, score.above);
+  EXPECT_EQ(score.above_far_hits, score.above_far);
+  // the truth below the band's lower limit at every sample of the farther half only
+  const int n = static_cast<int>(phi.size());
+  for (int i = n - score.above_far; i < n; ++i) truth[i] = band.lower[i] - 0.01;
+  score = scoreBand(band, phi, truth);
+  EXPECT_EQ(score.above_far_hits, 0);
+  EXPECT_EQ(score.above_hits, score.above - score.above_far);
+}
+
 // The whole estimate on a small noisy synthetic pair whose data stop at x ≈ 0.58: the truth lies inside the band
 // at about the nominal rate or more (the part above the data is a bound), and the band is not the trivial [0, 1].
 TEST(CurveBand, SyntheticPairBandContainsTheTruth) {

@@ -256,6 +256,7 @@ BandScore scoreBand(const CurveBand& band, const std::vector<double>& phi, const
       ++score.below, score.below_hits += hit;
     } else if (i > i1) {
       ++score.above, score.above_hits += hit;
+      if (2 * (i - i1) > n - 1 - i1) ++score.above_far, score.above_far_hits += hit;
     } else {
       ++score.inside, score.inside_hits += hit;
       score.shape_hits += std::abs(score.truth_scale * truth[i] - phi[i]) <= band.shape_half_width[i] + 1e-12;

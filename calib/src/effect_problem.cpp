@@ -13,7 +13,6 @@
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
 #include "crfcal/noise_estimation.hpp"
-#include "effect_grouped_residuals.hpp"
 #include "noise_debias_cache.hpp"
 #include "parallel_jobs.hpp"
 
@@ -310,17 +309,12 @@ Eigen::VectorXd Problem::linearStart(const Samples& s, const Spec& spec, const s
   return theta;
 }
 
-// Levenberg–Marquardt on r_i = w_i(θ) (t_i − c_i·θ): w depends on the φ re-fit through φ'(B). The samples are
-// factorised once per run and weight group (effect_grouped_residuals.hpp), so every pass costs O(groups · cols²)
-// instead of O(samples · cols²), in the search's hundreds of fits per pair. With `state`, a run stopped by a `tolerance` above kFitTolerance can be run on later from θ and `state` through the
-// same passes as one run to kFitTolerance.
-void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
-                                 Eigen::VectorXd& theta, const DesignRows* rows, double tolerance,
-                                 LmState* state) const {
-  const int cols = static_cast<int>(theta.size());
+// The used samples' design rows and targets by weight group (every sample its own without groups), the groups
+// numbered in order of first use.
+GroupedResiduals Problem::groupedResiduals(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
+                                           int cols, const DesignRows* rows) const {
   const int terms = static_cast<int>(s.Dh.size());
-  const bool grouped = s.weight_group.size() == s.size();  // else each sample is its own group
-  // Each used sample's group, numbered in order of first use (every sample its own without groups), and the sizes.
+  const bool grouped = s.weight_group.size() == s.size();
   std::vector<int> compact(grouped ? static_cast<std::size_t>(s.weight_groups) : 0, -1), group_of(use.size());
   std::vector<std::size_t> first;
   std::vector<int> size;
@@ -347,6 +341,18 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
     const double* x = designRow(s, use[k], spec, rows, buffer, t);
     residuals.add(group_of[k], x, t);
   }
+  return residuals;
+}
+
+// Levenberg–Marquardt on r_i = w_i(θ) (t_i − c_i·θ): w depends on the φ re-fit through φ'(B). The samples are
+// factorised once per run and weight group (effect_grouped_residuals.hpp), so every pass costs O(groups · cols²)
+// instead of O(samples · cols²), in the search's hundreds of fits per pair. With `state`, a run stopped by a
+// `tolerance` above kFitTolerance can be run on later from θ and `state` through the same passes as one run to
+// kFitTolerance.
+void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
+                                 Eigen::VectorXd& theta, const DesignRows* rows, double tolerance,
+                                 LmState* state) const {
+  GroupedResiduals residuals = groupedResiduals(s, spec, use, static_cast<int>(theta.size()), rows);
   LmState own;
   LmState& st = state ? *state : own;
   st.finished = true;  // unless paused below

@@ -26,6 +26,7 @@
 #include "crfcal/effects.hpp"
 #include "crfcal/noise_debias.hpp"
 #include "crfcal/response_curve.hpp"
+#include "effect_grouped_residuals.hpp"
 #include "image_units.hpp"
 
 namespace crfcal::effect {
@@ -267,6 +268,9 @@ class Problem {
   // The weighted linear solution without the φ terms (weights of φ̂): the start of the Levenberg–Marquardt.
   Eigen::VectorXd linearStart(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use, int cols,
                               const DesignRows* rows) const;
+  // The samples `use` by weight group, as the Levenberg–Marquardt reads them.
+  GroupedResiduals groupedResiduals(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use, int cols,
+                                    const DesignRows* rows) const;
   void levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
                           Eigen::VectorXd& theta, const DesignRows* rows, double tolerance,
                           LmState* state) const;

@@ -219,6 +219,7 @@ std::vector<double> offsetTermHalfWidth(const std::vector<double>& phi, std::pai
 struct BandScore {
   int inside = 0, inside_hits = 0;  // samples in the covered range, of which the truth inside [lower, upper]
   int above = 0, above_hits = 0;    // above it
+  int above_far = 0, above_far_hits = 0;  // of those, the farther half of [covered top, 1] (towards x = 1)
   int below = 0, below_hits = 0;    // below it
   int shape_hits = 0;               // covered-range samples with the scaled truth inside the shape band
   double truth_scale = 1;           // a
