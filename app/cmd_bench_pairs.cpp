@@ -398,7 +398,8 @@ struct PairsRun {
       s.band_seconds = band.seconds;
       row["band_G"] = {{"inside", s.band->inside}, {"inside_hits", s.band->inside_hits}, {"above", s.band->above},
                        {"above_hits", s.band->above_hits}, {"above_far", s.band->above_far},
-                       {"above_far_hits", s.band->above_far_hits}, {"below", s.band->below}, {"below_hits", s.band->below_hits},
+                       {"above_far_hits", s.band->above_far_hits}, {"below", s.band->below},
+                       {"below_hits", s.band->below_hits},
                        {"shape_hits", s.band->shape_hits}, {"truth_scale", s.band->truth_scale},
                        {"median_width_inside", s.band->median_width_inside},
                        {"median_shape_width_inside", s.band->median_shape_width_inside},
