@@ -86,11 +86,13 @@ struct GroupedCase {
         rows.back().push_back({1 + 1e-5 * unit(rng), 1.0, unit(rng), unit(rng) - 0.5, unit(rng), unit(rng)});
     }
   }
-  GroupedResiduals residuals() const {
+  // Group g at B's level g / 255; only the groups below `clip`.
+  GroupedResiduals residuals(double clip = 2) const {
     GroupedResiduals out(kCols, kPhiTerms, kFloor);
     for (std::size_t g = 0; g < rows.size(); ++g) {
+      if (g / 255.0 >= clip) continue;
       const int id = out.addGroup(d0[g], slope[g].data(), static_cast<int>(rows[g].size()));
-      for (const auto& r : rows[g]) out.add(id, r.data(), r[kCols]);
+      for (const auto& r : rows[g]) out.add(id, r.data(), r[kCols], g / 255.0);
     }
     return out;
   }
@@ -141,6 +143,39 @@ TEST(EffectGroupedResiduals, CostGradientAndNormalMatrixEqualTheSampleBySampleSu
     EXPECT_LE((Jtr - jtr).norm(), 1e-8 * jtr.norm()) << theta.transpose();
     EXPECT_LE((JtJ - jtj).norm(), 1e-9 * jtj.norm()) << theta.transpose();
   }
+}
+
+// The plateau grid's levels take their groups from one factorisation of all samples: the same to the bit as
+// grouping and factorising each level's samples anew; a group that straddles the level cannot be taken.
+TEST(EffectGroupedResiduals, GroupsBelowAPlateauLevelEqualThoseFactorisedOnTheirOwn) {
+  const GroupedCase data(8);
+  GroupedResiduals all = data.residuals();
+  all.factorise();
+  const double clip = 30.5 / 255;
+  GroupedResiduals taken(0, 0, 0);
+  ASSERT_TRUE(all.below(clip, taken));
+  GroupedResiduals anew = data.residuals(clip);
+  ASSERT_EQ(taken.groups(), 31);
+  ASSERT_EQ(anew.groups(), 31);
+  const Eigen::VectorXd theta = (Eigen::VectorXd(5) << 0.5, 0.1, 0.3, 0.2, -0.1).finished();
+  EXPECT_EQ(taken.evaluate(theta), anew.evaluate(theta));
+  Eigen::MatrixXd a, b;
+  Eigen::VectorXd ga, gb;
+  taken.normalEquations(a, ga);
+  anew.normalEquations(b, gb);
+  EXPECT_EQ(a, b);
+  EXPECT_EQ(ga, gb);
+  // one group whose samples lie on both sides of the level
+  GroupedResiduals straddling(GroupedCase::kCols, GroupedCase::kPhiTerms, GroupedCase::kFloor);
+  const double slope[2] = {0.1, 0.2}, row[6] = {1, 1, 0.5, 0.1, 0.2, 0.3};
+  const int g = straddling.addGroup(1.0, slope, 2);
+  straddling.add(g, row, row[5], 0.40);
+  straddling.add(g, row, row[5], 0.41);
+  straddling.factorise();
+  GroupedResiduals none(0, 0, 0);
+  EXPECT_FALSE(straddling.below(0.405, none));
+  EXPECT_TRUE(straddling.below(0.5, none));
+  EXPECT_EQ(none.groups(), 1);
 }
 
 TEST(EffectWeightGroups, SamplesAreGroupedByTheirLevelOfB) {

@@ -1,8 +1,11 @@
 #include "effect_grouped_residuals.hpp"
 
 #include <algorithm>
+#include <limits>
 
 #include <Eigen/QR>
+
+#include "crfcal/error.hpp"
 
 namespace crfcal::effect {
 
@@ -13,10 +16,14 @@ int GroupedResiduals::addGroup(double derivative, const double* slope, int sampl
   rows_.resize(rows_.size() + static_cast<std::size_t>(samples) * width(), 0.0);
   count_.push_back(samples);
   filled_.push_back(0);
+  lowest_.push_back(std::numeric_limits<double>::infinity());
+  highest_.push_back(-std::numeric_limits<double>::infinity());
   return groups() - 1;
 }
 
-void GroupedResiduals::add(int g, const double* x, double t) {
+void GroupedResiduals::add(int g, const double* x, double t, double level) {
+  lowest_[static_cast<std::size_t>(g)] = std::min(lowest_[static_cast<std::size_t>(g)], level);
+  highest_[static_cast<std::size_t>(g)] = std::max(highest_[static_cast<std::size_t>(g)], level);
   const std::size_t m = static_cast<std::size_t>(count_[static_cast<std::size_t>(g)]);
   double* column = rows_.data() + start_[static_cast<std::size_t>(g)] + filled_[static_cast<std::size_t>(g)]++;
   for (int a = 0; a < cols_; ++a) column[a * m] = x[a];
@@ -25,7 +32,7 @@ void GroupedResiduals::add(int g, const double* x, double t) {
 
 double GroupedResiduals::evaluate(const Eigen::VectorXd& theta) {
   const int n = groups(), p = width();
-  if (factor_.empty() && n > 0) factorise();
+  factorise();
   w_.resize(n), q2_.resize(n), q1_.resize(cols_, n), unfloored_.resize(static_cast<std::size_t>(n));
   Eigen::VectorXd point(p), u(p);
   point << theta, -1.0;
@@ -66,6 +73,7 @@ void GroupedResiduals::normalEquations(Eigen::MatrixXd& JtJ, Eigen::VectorXd& Jt
 
 // Each group's rows factorised in place (Householder QR); R̃ and G = R̃_ccᵀ R̃_cc kept, the rows dropped.
 void GroupedResiduals::factorise() {
+  if (!factor_.empty() || groups() == 0) return;
   const int p = width();
   factor_.assign(static_cast<std::size_t>(groups()) * p * p, 0.0);
   gram_.resize(static_cast<std::size_t>(groups()) * cols_ * cols_);
@@ -80,6 +88,25 @@ void GroupedResiduals::factorise() {
         R.leftCols(cols_).transpose() * R.leftCols(cols_);
   }
   std::vector<double>().swap(rows_);
+}
+
+bool GroupedResiduals::below(double clip, GroupedResiduals& out) const {
+  if (factor_.empty() && groups() > 0) throw Error("GroupedResiduals::below: not factorised");
+  out = GroupedResiduals(cols_, terms_, min_derivative_);
+  const std::size_t p2 = static_cast<std::size_t>(width()) * width(), c2 = static_cast<std::size_t>(cols_) * cols_;
+  for (std::size_t g = 0; g < static_cast<std::size_t>(groups()); ++g) {
+    if (lowest_[g] >= clip) continue;
+    if (highest_[g] >= clip) return false;
+    out.d0_.push_back(d0_[g]);
+    out.slope_.insert(out.slope_.end(), slope_.begin() + g * terms_, slope_.begin() + (g + 1) * terms_);
+    out.lowest_.push_back(lowest_[g]);
+    out.highest_.push_back(highest_[g]);
+    out.count_.push_back(count_[g]);
+    out.filled_.push_back(filled_[g]);
+    out.factor_.insert(out.factor_.end(), factor_.begin() + g * p2, factor_.begin() + (g + 1) * p2);
+    out.gram_.insert(out.gram_.end(), gram_.begin() + g * c2, gram_.begin() + (g + 1) * c2);
+  }
+  return true;
 }
 
 }  // namespace crfcal::effect

@@ -23,9 +23,15 @@ class GroupedResiduals {
 
   // A group of `samples` samples with φ̂'(B) `derivative` and h_k'(B) `slope` (terms entries); returns its index.
   int addGroup(double derivative, const double* slope, int samples);
-  // The next sample (design row x, cols entries; target t) of group g; after every addGroup().
-  void add(int g, const double* x, double t);
+  // The next sample (design row x, cols entries; target t; its level of B) of group g; after every addGroup().
+  void add(int g, const double* x, double t, double level);
   int groups() const { return static_cast<int>(d0_.size()); }
+  // Factorises every group's samples (else the first evaluate() does).
+  void factorise();
+  // The groups whose samples all lie below B's level `clip`, factorised as this one (so the same, to the bit, as
+  // those samples grouped and factorised on their own): the plateau grid's levels drop whole groups. False when a
+  // group straddles `clip` (B not on integer codes): then nothing is written.
+  bool below(double clip, GroupedResiduals& out) const;
 
   // Σ r² at θ; keeps each group's w, Σ c q and Σ q² there for normalEquations(). The first call factorises.
   double evaluate(const Eigen::VectorXd& theta);
@@ -33,12 +39,12 @@ class GroupedResiduals {
   void normalEquations(Eigen::MatrixXd& JtJ, Eigen::VectorXd& Jtr) const;
 
  private:
-  void factorise();
   int width() const { return cols_ + 1; }
 
   int cols_, terms_;
   double min_derivative_;
   std::vector<double> d0_, slope_;     // per group: φ̂'(B); h_k'(B) (terms)
+  std::vector<double> lowest_, highest_;  // per group: its samples' lowest and highest level of B
   std::vector<int> count_, filled_;    // per group: samples, samples added
   std::vector<std::size_t> start_;     // per group: its first entry in rows_
   std::vector<double> rows_;           // per group: its samples' [c t], column-major (count × width) until factorised

@@ -36,11 +36,15 @@ ChannelFit Problem::bestPlateau(const Samples& s, const Spec& spec, const std::v
   std::vector<LmState> states(n);
   std::vector<double> error(n, std::numeric_limits<double>::quiet_NaN());
   std::vector<char> tried(n, 0);
+  // Every level's samples are whole groups of these (the levels censor B's plateau, the groups are B's levels):
+  // grouped and factorised once for the grid.
+  GroupedResiduals groups = groupedResiduals(s, spec, idx, rows.cols, &rows);
+  groups.factorise();
   const auto tryLevel = [&](std::size_t j) {
     if (j >= n || tried[j]) return;
     tried[j] = 1;
     if (!(clips[j] > 0)) return;
-    fits[j] = fitLevel(s, spec, idx, clips[j], start, &rows, kPlateauSelectionTolerance, &states[j]);
+    fits[j] = fitLevel(s, spec, idx, clips[j], start, &rows, kPlateauSelectionTolerance, &states[j], &groups);
     if (!fits[j].ok) return;
     double e = 0;
     for (auto i : idx) {
@@ -69,7 +73,7 @@ ChannelFit Problem::bestPlateau(const Samples& s, const Spec& spec, const std::v
   if (chosen == n) return {};
   if (states[chosen].finished) return fits[chosen];
   // run on where it paused: the fit the exhaustive grid made at this level, to the bit
-  return fitLevel(s, spec, idx, clips[chosen], &fits[chosen].theta, &rows, kFitTolerance, &states[chosen]);
+  return fitLevel(s, spec, idx, clips[chosen], &fits[chosen].theta, &rows, kFitTolerance, &states[chosen], &groups);
 }
 
 }  // namespace crfcal::effect

@@ -339,7 +339,7 @@ GroupedResiduals Problem::groupedResiduals(const Samples& s, const Spec& spec, c
   for (std::size_t k = 0; k < use.size(); ++k) {
     double t = 0;
     const double* x = designRow(s, use[k], spec, rows, buffer, t);
-    residuals.add(group_of[k], x, t);
+    residuals.add(group_of[k], x, t, s.level[use[k]]);
   }
   return residuals;
 }
@@ -350,9 +350,11 @@ GroupedResiduals Problem::groupedResiduals(const Samples& s, const Spec& spec, c
 // `tolerance` above kFitTolerance can be run on later from θ and `state` through the same passes as one run to
 // kFitTolerance.
 void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
-                                 Eigen::VectorXd& theta, const DesignRows* rows, double tolerance,
-                                 LmState* state) const {
-  GroupedResiduals residuals = groupedResiduals(s, spec, use, static_cast<int>(theta.size()), rows);
+                                 Eigen::VectorXd& theta, const DesignRows* rows, double tolerance, LmState* state,
+                                 GroupedResiduals* grouped) const {
+  GroupedResiduals own_groups(0, 0, min_derivative_);
+  if (!grouped) own_groups = groupedResiduals(s, spec, use, static_cast<int>(theta.size()), rows);
+  GroupedResiduals& residuals = grouped ? *grouped : own_groups;
   LmState own;
   LmState& st = state ? *state : own;
   st.finished = true;  // unless paused below
@@ -393,8 +395,8 @@ void Problem::levenbergMarquardt(const Samples& s, const Spec& spec, const std::
 // the φ re-fit; without φ terms one linear solve). Samples on B's plateau (clip level `clip`, B intensity) are
 // censored: they do not enter the fit.
 ChannelFit Problem::fitLevel(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx, double clip,
-                             const Eigen::VectorXd* start, const DesignRows* rows, double tolerance,
-                             LmState* state) const {
+                             const Eigen::VectorXd* start, const DesignRows* rows, double tolerance, LmState* state,
+                             const GroupedResiduals* all_groups) const {
   double buffer[48], t;
   const int cols = rows ? rows->cols : row(s, idx[0], spec, buffer, t);
   const int terms = static_cast<int>(s.Dh.size());
@@ -411,7 +413,11 @@ ChannelFit Problem::fitLevel(const Samples& s, const Spec& spec, const std::vect
     theta = linearStart(s, spec, use, cols, rows);
     if (!theta.allFinite()) return f;
   }
-  if (terms > 0) levenbergMarquardt(s, spec, use, theta, rows, tolerance, state);
+  if (terms > 0) {
+    GroupedResiduals below_clip(0, 0, min_derivative_);
+    const bool shared = all_groups && all_groups->below(clip > 0 ? clip : 2.0, below_clip);
+    levenbergMarquardt(s, spec, use, theta, rows, tolerance, state, shared ? &below_clip : nullptr);
+  }
   else if (state) state->finished = true;
   f.theta = theta;
   f.clip = clip;

@@ -239,9 +239,12 @@ class Problem {
   // `rows`: the samples' design rows already formed (null: formed here).
   // `tolerance`: the LM stops when a pass lowers the cost by less than this fraction.
   // `state`: where a paused run stands (in), where this one stopped (out); `start` then is the paused θ.
+  // `all_groups`: the samples `idx` grouped and factorised already (groupedResiduals; the plateau grid's levels share
+  // them); the groups below `clip` are taken from it, the same to the bit as grouping the level's samples anew.
   ChannelFit fitLevel(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx, double clip,
                       const Eigen::VectorXd* start = nullptr, const DesignRows* rows = nullptr,
-                      double tolerance = kFitTolerance, LmState* state = nullptr) const;
+                      double tolerance = kFitTolerance, LmState* state = nullptr,
+                      const GroupedResiduals* all_groups = nullptr) const;
   // One channel on one fold (−1: all samples); clipping: the plateau level chosen on a grid of B's quantiles.
   ChannelFit fit(const Samples& s, const Spec& spec, int fold, const Eigen::VectorXd* start = nullptr) const;
   // Residual φ(B) − Ŷ in intensity units (clipping: two-sided against the plateau).
@@ -271,9 +274,10 @@ class Problem {
   // The samples `use` by weight group, as the Levenberg–Marquardt reads them.
   GroupedResiduals groupedResiduals(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use, int cols,
                                     const DesignRows* rows) const;
+  // `grouped`: the samples `use` grouped already (null: grouped here).
   void levenbergMarquardt(const Samples& s, const Spec& spec, const std::vector<std::size_t>& use,
-                          Eigen::VectorXd& theta, const DesignRows* rows, double tolerance,
-                          LmState* state) const;
+                          Eigen::VectorXd& theta, const DesignRows* rows, double tolerance, LmState* state,
+                          GroupedResiduals* grouped) const;
   // The plateau level of `clips` (B intensity, 2: none) with the lowest in-sample error and its fit.
   ChannelFit bestPlateau(const Samples& s, const Spec& spec, const std::vector<std::size_t>& idx,
                          const std::vector<double>& clips, const Eigen::VectorXd* start,
