@@ -417,8 +417,9 @@ ChannelFit Problem::fitLevel(const Samples& s, const Spec& spec, const std::vect
     GroupedResiduals below_clip(0, 0, min_derivative_);
     const bool shared = all_groups && all_groups->below(clip > 0 ? clip : 2.0, below_clip);
     levenbergMarquardt(s, spec, use, theta, rows, tolerance, state, shared ? &below_clip : nullptr);
+  } else if (state) {
+    state->finished = true;
   }
-  else if (state) state->finished = true;
   f.theta = theta;
   f.clip = clip;
   f.ok = theta.allFinite();
