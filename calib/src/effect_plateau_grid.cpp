@@ -37,9 +37,12 @@ ChannelFit Problem::bestPlateau(const Samples& s, const Spec& spec, const std::v
   std::vector<double> error(n, std::numeric_limits<double>::quiet_NaN());
   std::vector<char> tried(n, 0);
   // Every level's samples are whole groups of these (the levels censor B's plateau, the groups are B's levels):
-  // grouped and factorised once for the grid.
-  GroupedResiduals groups = groupedResiduals(s, spec, idx, rows.cols, &rows);
-  groups.factorise();
+  // grouped and factorised once for the grid (without φ terms fitLevel runs no Levenberg–Marquardt and reads none).
+  GroupedResiduals groups(0, 0, 0);
+  if (!s.Dh.empty()) {
+    groups = groupedResiduals(s, spec, idx, rows.cols, &rows);
+    groups.factorise();
+  }
   const auto tryLevel = [&](std::size_t j) {
     if (j >= n || tried[j]) return;
     tried[j] = 1;
