@@ -81,6 +81,32 @@ TEST(KernelEstimation, HolesInTheMaskDoNotShrinkOrSmearTheKernel) {
   EXPECT_LT(std::hypot(k.centroid.x, k.centroid.y), 3.0) << k.summary();  // Levin 3's centroid is ≈ (1.1, 0.6)
 }
 
+// A coarse level sees a pixel only where its whole block is usable and a kernel window only where all its blocks are:
+// a mask whose holes are spaced just wide enough for the full-resolution window (here one unusable pixel every 18 px
+// for a 15 px kernel, as interleaved clipped highlights of B and black of a dark sharp shot leave it) empties the
+// half-resolution level. The estimate then starts at the full resolution instead of failing with "no edges".
+TEST(KernelEstimation, CoarseLevelWithoutEquationsStartsAtTheNextFinerLevel) {
+  const cv::Mat sharp = mosaic();
+  const cv::Mat truth = test::levinKernel(5);  // 13×13
+  const cv::Mat blurred = quantize(0.9 * convolve(sharp, truth), 8);
+  cv::Mat valid(sharp.size(), CV_8U, cv::Scalar(255));
+  for (int y = 0; y < valid.rows; y += 18)
+    for (int x = 0; x < valid.cols; x += 18) valid.at<uchar>(y, x) = 0;
+  KernelEstimationOptions options;
+  options.kernel_size = 15;
+  const KernelEstimate k = estimateKernel(quantize(sharp, 8), blurred, {}, valid, options);
+  ASSERT_EQ(k.levels.size(), 1u) << "the half-resolution level has no equations in this mask";
+  EXPECT_EQ(k.levels.front().level, 0);
+  // Exactly the estimate made with one level from the start.
+  KernelEstimationOptions one_level = options;
+  one_level.pyramid_levels = 1;
+  const KernelEstimate direct = estimateKernel(quantize(sharp, 8), blurred, {}, valid, one_level);
+  EXPECT_EQ(cv::norm(k.kernel, direct.kernel, cv::NORM_INF), 0.0);
+  EXPECT_FALSE(k.hit_size_limit) << k.summary();
+  EXPECT_GT(k.gain, 0.7) << k.summary();  // the sparse prior from a whole-window start shrinks it (0.78)
+  EXPECT_LT(kernelShapeError(k.kernel, truth), 0.45) << k.summary();
+}
+
 // Weighted equations (the irradiance-domain rounds weight by 1/φ'(B)): a constant weight changes nothing (the priors
 // are relative to the data terms), and down-weighting the pixels whose errors are large keeps those errors out of
 // the kernel — here a quarter of B carries a strong error correlated with the image (like the amplified JPEG/chroma

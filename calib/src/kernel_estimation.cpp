@@ -403,8 +403,15 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
         accumulate(d, offsets, eq);
       }
     }
-    if (eq.pixels < std::max<long long>(50, ns) || !(eq.yy > 1e-12) || !(eq.M.trace() > 1e-12))
+    if (eq.pixels < std::max<long long>(50, ns) || !(eq.yy > 1e-12) || !(eq.M.trace() > 1e-12)) {
+      // A coarse level sees a pixel only where its whole block is usable, and a kernel window only where all of
+      // the window's blocks are: clipped highlights in B and black in a dark sharp shot, interleaved, can leave a
+      // coarse level without equations while the finer ones have thousands. Then the estimate starts at the next
+      // finer level from the whole window, as it would have with fewer levels (result.levels then starts there);
+      // only the finest level must hold.
+      if (previous.empty() && level > 0) continue;
       throw InvalidInput("no edges: too little texture (or too many saturated pixels) to estimate the blur kernel");
+    }
     NormalEquations regularised = eq;
     addSmoothness(regularised.M, offsets, options.smoothness * eq.M.trace() / ns);
     Eigen::VectorXd k0 = Eigen::Map<const Eigen::VectorXd>(start.data(), ns);
