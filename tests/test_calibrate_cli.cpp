@@ -314,6 +314,37 @@ TEST(CalibrateCli, EdgelessPair) {
   expectCleanFailure(registered, dir / "out", "no edges");
 }
 
+// A night scene: the short exposure black over most of the frame leaves the kernel no edges, and the message says
+// where the pixels went (the sharp shot's black share), not only "too little texture".
+TEST(CalibratePairChecks, KernelFailureNamesTheSharpShotsBlackShare) {
+  cv::Mat sharp = test::levinImage(1).clone();
+  cv::Mat night = cv::Mat::zeros(sharp.size(), sharp.type());
+  const cv::Rect lit(sharp.cols / 2 - 12, sharp.rows / 2 - 12, 24, 24);  // one small lit window
+  sharp(lit).copyTo(night(lit));
+  cv::Mat blurred;
+  cv::filter2D(night, blurred, -1, test::levinKernel(2), cv::Point(-1, -1), 0, cv::BORDER_CONSTANT);
+  cv::Mat sharp8, blurred8;
+  night.convertTo(sharp8, CV_8U, 255);
+  blurred.convertTo(blurred8, CV_8U, 255);
+  PairCalibrationOptions options;
+  options.register_pair = false;
+  options.rgb = false;
+  options.rounds = 0;
+  options.effects.enabled = false;
+  options.fit.nominal_ratio = 1;
+  try {
+    calibratePair(sharp8, blurred8, options);
+    FAIL() << "a frame black but for a 24 px window has no edges for a 35 px kernel";
+  } catch (const InvalidInput& e) {
+    const std::string message = e.what();
+    const std::size_t at = message.find("the sharp shot is black over ");
+    ASSERT_NE(at, std::string::npos) << message;
+    const int black = std::stoi(message.substr(at + std::string("the sharp shot is black over ").size()));
+    EXPECT_GE(black, 90) << message;  // 99.4 % of the frame is outside the lit window
+    EXPECT_NE(message.find("usable: "), std::string::npos) << message;
+  }
+}
+
 TEST(CalibrateCli, SaturatedFrames) {
   test::TempDir dir;
   const cv::Mat sharp = test::levinImage(1) * 255;

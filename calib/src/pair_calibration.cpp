@@ -75,14 +75,18 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   try {
     detail::estimateFirstKernel(state);
   } catch (const InvalidInput& e) {
+    // Where the kernel's pixels went: a night scene shot in the real regime is black over most of the short
+    // exposure, which "no edges" alone would hide (stop 42: St. Louis at night, r = 8, black over 78 %).
+    const std::string reason = e.reason() + " (" + detail::usablePixelsNote(state) + ")";
     // A kernel that cannot explain one shot by the other, on a pair whose edges barely correlate: two scenes
     // (issue 15: the size-limit advice would only lead to "no edges").
-    if (state.same_scene_correlation >= detail::doubtful_same_scene_correlation) throw;
+    if (state.same_scene_correlation >= detail::doubtful_same_scene_correlation)
+      throw InvalidInput(reason, e.subject());
     // Not only two scenes: a real-regime pair whose sharp shot is dark and noisy also correlates this little
     // (measured: 0.42 at r ≈ 6, `bench effects --ratio 6 --jpeg 90 --handheld`), so both causes are named.
     char correlation[16];
     std::snprintf(correlation, sizeof correlation, "%.2f", state.same_scene_correlation);
-    throw InvalidInput("the kernel estimate failed (" + e.reason() + "), and the two images' edges correlate only " +
+    throw InvalidInput("the kernel estimate failed (" + reason + "), and the two images' edges correlate only " +
                            correlation + " after registration: they may not show the same scene, or the sharp "
                            "shot is too dark or noisy to show its edges",
                        ErrorSubject::pair);

@@ -2,8 +2,11 @@
 // (kernel_estimation.hpp) between the histogram-matched sharp shot and the blurred one, and the kernel-aware
 // refinement of the registration (ECC of I ⊗ K against B, registration.hpp) with K estimated again on the result.
 #include <algorithm>
+#include <cstdio>
 #include <string>
 #include <vector>
+
+#include <opencv2/imgproc.hpp>
 
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
@@ -101,6 +104,27 @@ KernelEstimate intensityDomainKernel(PairCalibrationState& state, bool per_tile)
 }
 
 }  // namespace
+
+std::string usablePixelsNote(const PairCalibrationState& state) {
+  const double overlap = std::max(1, cv::countNonZero(state.overlap));
+  const auto share = [&](const cv::Mat& mask) {
+    cv::Mat inside;
+    cv::bitwise_and(mask, state.overlap, inside);
+    return 100.0 * cv::countNonZero(inside) / overlap;
+  };
+  cv::Mat sharp_black;
+  cv::medianBlur(state.sharp_g8, sharp_black, 3);  // as the align stage marks I's clipped regions
+  sharp_black = sharp_black <= state.clip_low;
+  const double black = share(sharp_black);
+  char buffer[300];
+  std::snprintf(buffer, sizeof buffer,
+                "usable: %.0f %% of the overlap; the sharp shot is black over %.0f %%, clipped over %.0f %%, the "
+                "blurred one clipped over %.0f %%%s",
+                share(state.usable), black, share(state.sharp_clipped & ~sharp_black),
+                share(state.blurred_g8 >= state.clip_high),
+                black >= 50 ? ": a brighter short exposure (a smaller exposure ratio) would leave more" : "");
+  return buffer;
+}
 
 void estimateFirstKernel(PairCalibrationState& state) {
   const PairCalibrationOptions& options = state.options;

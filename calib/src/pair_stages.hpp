@@ -123,6 +123,10 @@ constexpr double doubtful_same_scene_correlation = 0.5;
 cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::Mat& mask);
 // The first kernel (or the given one) with the kernel-aware registration refinement; sets state.kernel.
 void estimateFirstKernel(PairCalibrationState& state);
+// Where the kernel's pixels went, for a failed estimate's message: the share of the overlap that is usable and
+// what removed the rest (the sharp shot's black, either shot's clipped highlights), e.g. "usable: 4 % of the
+// overlap; the sharp shot is black over 78 %, the blurred one clipped over 9 %".
+std::string usablePixelsNote(const PairCalibrationState& state);
 // One kernel estimate on the canvas (s, b: canvas images); per_tile: also the tiles' own kernels.
 KernelEstimate estimateCanvasKernel(PairCalibrationState& state, const cv::Mat& s, const cv::Mat& b, bool per_tile,
                                     double lambda, const cv::Mat& weights);
