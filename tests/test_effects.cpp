@@ -4,6 +4,8 @@
 // no other, and report a φ within the clean-case accuracy (the same pair without the effect, + 0.005 RMSE).
 // Detection and false-alarm RATES are measured by `crfcal bench effects` (docs/RESULTS.md#effects).
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <optional>
 #include <random>
 
@@ -184,6 +186,34 @@ TEST(Effects, ExposureRatioMismatchIsFound) {
 
 TEST(Effects, SignalDependentNoiseIsFound) {
   expectFound("signal_dependent_noise", {pairOfPhotos(2, 4), "CanonPowerShotS50", 3, 1.3, false}, 12);
+}
+
+// The size of the level dependence is read over the levels the sharp shot covers (the fit's levels), not extrapolated
+// to 0.1–0.9: in a dark shot the bins span a small part of [0, 1], and the planted law's variance ratio across that
+// span is s^(span/0.8). (Extrapolated, a dark real shot's σ 0.2 → 0.5 of a level over levels
+// 0.01–0.06 read as a contrast of 5·10¹³.)
+TEST(EffectsNoise, ContrastIsTheVarianceRatioAcrossTheCoveredLevels) {
+  const ResponseModel truth = TableModel{io::readCurveTable(samples() / "camera_curves" / "CanonPowerShotS50.csv")};
+  PlantingOptions po;
+  po.effect = "signal_dependent_noise";
+  po.strength = 6;
+  po.ratio = 6;
+  po.exposure /= 40;  // a dark short shot, as the phone's pair 2 (its levels up to 0.06)
+  po.seed = 12;
+  const PlantedPair pair = plantEffect(pairOfPhotos(2, 4), truth, levinKernel(3), po);
+  PairCalibrationOptions options = calibrationOptions({pairOfPhotos(2, 4), "CanonPowerShotS50", 3, 6, false}, pair);
+  const PairCalibrationResult result = calibratePair(pair.sharp, pair.blurred, options);
+  const EffectEntry* noise = result.effects.find("signal_dependent_noise");
+  ASSERT_TRUE(noise != nullptr && noise->tested) << result.effects.summary();
+  double lowest = 1, highest = 0;
+  for (const auto& [key, value] : noise->parameters)
+    if (key.rfind("level_", 0) == 0) lowest = std::min(lowest, value), highest = std::max(highest, value);
+  const double span = highest - lowest;
+  const double contrast = noise->parameters.at("contrast");
+  const double law = std::pow(po.strength, span / 0.8);
+  std::printf("span %.3f contrast %.3f law %.3f\n", span, contrast, law);
+  ASSERT_LT(span, 0.6) << "the underexposed shot covers little of [0, 1]";
+  EXPECT_NEAR(std::log(contrast), std::log(law), 0.35) << result.effects.summary();
 }
 
 TEST(Effects, ClippingIsFound) {

@@ -3,8 +3,9 @@
 // `noise_bins` level bins (equal counts of I's 5×5 local mean), on the 30 % of each bin with the least 7×7 residual
 // energy, same folds. Base: one variance for all levels (the seed's homoscedastic Gaussian); extended: one per
 // level bin. Robust (MAD) scales on one fold, held-out Huber negative log-likelihood on the other; detected when
-// the paired block t (as z) ≥ min_z AND the variance contrast between levels 0.1 and 0.9 of the log-linear trend
-// ≥ min_noise_contrast (below a contrast κ homoscedastic weights keep ≥ 4κ/(1+κ)² of the efficiency, Kantorovich).
+// the paired block t (as z) ≥ min_z AND the variance contrast of the log-linear trend across the levels the bins
+// cover (at most 0.8 of a level) ≥ min_noise_contrast (below a contrast κ homoscedastic weights keep ≥ 4κ/(1+κ)² of
+// the efficiency, Kantorovich: the efficiency of a fit over those levels).
 #include <algorithm>
 #include <cmath>
 
@@ -21,7 +22,7 @@ struct NoiseTest {
   std::vector<double> block_nll_base, block_nll_ext;
   double total_base = 0, total_ext = 0;
   long count = 0;
-  double contrast = 1;  // variance ratio between levels 0.1 and 0.9 of the log-linear trend (worst channel)
+  double contrast = 1;  // variance ratio of the log-linear trend across the bins' levels, ≤ 0.8 apart (worst channel)
   std::vector<std::vector<double>> level, sigma;  // per channel: bin mean level, robust σ (all samples)
 };
 
@@ -103,18 +104,24 @@ void fillBins(const std::vector<Item>& items, const Layout& layout, int bins, Bi
   }
 }
 
-// Size of the level dependence: the log-variance trend over the bins, as a contrast between levels 0.1 and 0.9
-// (a property of the camera, whatever levels this image happens to cover).
+// Size of the level dependence: the log-variance trend over the bins, as the variance ratio across the levels the
+// bins cover, over at most 0.8 of a level (the 0.1–0.9 of min_noise_contrast's choice). What the size decides is how
+// much homoscedastic weights cost the fit, and the fit has only these levels. (It was the ratio between levels 0.1
+// and 0.9 whatever the bins covered until stop 42: on a dark sharp shot whose bins span 0.01–0.06 that extrapolation
+// turned σ 0.2 → 0.5 of a level into a contrast of 5·10¹³.)
 double levelContrast(const Bins& bn, int bins) {
   double sw = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+  double lowest = 1, highest = 0;
   for (int b = 0; b < bins; ++b) {
     if (!(bn.sig[b] > 0)) continue;
     const double w = bn.count[b], x = bn.level[b], y = std::log(bn.sig[b] * bn.sig[b]);
     sw += w, sx += w * x, sy += w * y, sxx += w * x * x, sxy += w * x * y;
+    lowest = std::min(lowest, x);
+    highest = std::max(highest, x);
   }
   const double det = sw * sxx - sx * sx;
   const double slope = det > 1e-12 ? (sw * sxy - sx * sy) / det : 0.0;
-  return std::exp(std::abs(slope) * 0.8);
+  return std::exp(std::abs(slope) * std::clamp(highest - lowest, 0.0, 0.8));
 }
 
 // One channel: per fold one robust σ (base) and one per bin (extended); the held-out NLL per block into nt.

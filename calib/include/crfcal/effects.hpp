@@ -57,9 +57,10 @@
 // energy (texture only adds energy; the same fraction everywhere keeps the ratios), same folds. Base: one variance
 // for all levels (the seed's homoscedastic Gaussian); extended: one per level bin. Robust (MAD) scales on one fold,
 // held-out Huber negative log-likelihood on the other; detected when the paired block t (as z) ≥ min_z AND the
-// size of the level dependence — the variance ratio between levels 0.1 and 0.9 of the log-linear trend over the
-// bins — ≥ min_noise_contrast (below a contrast κ homoscedastic weights keep ≥ 4κ/(1+κ)² of the efficiency —
-// Kantorovich — 89 % at κ = 2).
+// size of the level dependence — the variance ratio of the log-linear trend over the bins, across the levels the
+// bins cover but at most 0.8 apart (0.1–0.9) — ≥ min_noise_contrast (below a contrast κ homoscedastic weights keep
+// ≥ 4κ/(1+κ)² of the efficiency — Kantorovich — 89 % at κ = 2; the efficiency of the fit over the levels it has, so
+// the trend is not extrapolated beyond them).
 // When an effect is detected the reported φ comes from the extended model: the jointly re-fitted φ_ext and the
 // parameters correct the pair (B' = ψ(φ(B)/g(ρ)) for vignetting, B' = ψ(φ(B) − c) for an offset,
 // I'_c = ψ_c(φ_c(I_c) + Σ_d (m_cd/a_c)(φ_d(I_d) − φ_c(I_c))) for mixing — only the channel's own row; the plateau is
