@@ -286,18 +286,23 @@ TEST(CalibrateCli, DifferentScenesAreRefused) {
 
 // The same scene, blurred: the same-scene correlation stays far above its threshold (the refusal above is not a
 // refusal of every --no-register pair).
+// A grey pair given as aligned, one kernel estimate, no rounds, no effects: the pair checks and the kernel stage only.
+PairCalibrationOptions quickGreyPairOptions() {
+  PairCalibrationOptions options;
+  options.register_pair = false;
+  options.rgb = false;
+  options.rounds = 0;
+  options.effects.enabled = false;
+  return options;
+}
+
 TEST(CalibratePairChecks, SameSceneBlurredPasses) {
   cv::Mat blurred;
   cv::filter2D(test::levinImage(1), blurred, -1, test::levinKernel(2), cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
   cv::Mat sharp8, blurred8;
   test::levinImage(1).convertTo(sharp8, CV_8U, 255);
   blurred.convertTo(blurred8, CV_8U, 255);
-  PairCalibrationOptions options;
-  options.register_pair = false;
-  options.rgb = false;
-  options.rounds = 0;
-  options.effects.enabled = false;
-  EXPECT_NO_THROW(calibratePair(sharp8, blurred8, options));
+  EXPECT_NO_THROW(calibratePair(sharp8, blurred8, quickGreyPairOptions()));
 }
 
 TEST(CalibrateCli, EdgelessPair) {
@@ -326,11 +331,7 @@ TEST(CalibratePairChecks, KernelFailureNamesTheSharpShotsBlackShare) {
   cv::Mat sharp8, blurred8;
   night.convertTo(sharp8, CV_8U, 255);
   blurred.convertTo(blurred8, CV_8U, 255);
-  PairCalibrationOptions options;
-  options.register_pair = false;
-  options.rgb = false;
-  options.rounds = 0;
-  options.effects.enabled = false;
+  PairCalibrationOptions options = quickGreyPairOptions();
   options.fit.nominal_ratio = 1;
   try {
     calibratePair(sharp8, blurred8, options);
