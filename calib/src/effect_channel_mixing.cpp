@@ -32,7 +32,9 @@ void describe(const EffectSearch& search, const Spec& spec, const Evaluation& ev
       if (d != c) largest = std::max(largest, std::abs(m));
     }
   }
-  e.detail = fmt("largest off-diagonal mix %.3f (relative to the own channel)", largest);
+  e.detail = std::isfinite(largest)
+                 ? fmt("largest off-diagonal mix %.3f (relative to the own channel)", largest)
+                 : std::string("no mix measurable: a channel's own term fitted to 0 (not physical)");
 }
 
 // Channel c's row of the mix applied to I's irradiances, so that B_c = ψ_c(a_c K ⊗ φ_c(I'_c)) holds:
