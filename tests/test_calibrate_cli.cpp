@@ -5,6 +5,8 @@
 #include <fstream>
 #include <iterator>
 #include <random>
+#include <stdexcept>
+#include <string>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -597,6 +599,17 @@ TEST(CalibrateSmallBlur, RatioIsHeldAtExifUnlessAlwaysFitted) {
   EXPECT_NE(free_r.fits.at("G").ratio, 2.1);
 }
 
+// vivo X6S pair i (noisy_i.jpg, blurred_i.jpg in dir) calibrated with default options but no band, r nominal from EXIF.
+PairCalibrationResult calibrateVivoPairWithoutBand(const fs::path& dir, int i) {
+  const std::string n = std::to_string(i);
+  const io::LoadedPair pair = io::loadPair(dir / ("noisy_" + n + ".jpg"), dir / ("blurred_" + n + ".jpg"));
+  if (!pair.exif_ratio) throw std::runtime_error("vivo pair " + n + " has no EXIF ratio");
+  PairCalibrationOptions options;
+  options.band.replicates = 0;
+  options.fit.nominal_ratio = pair.exif_ratio->ratio();
+  return calibratePair(pair.sharp.image, pair.blurred.image, options);
+}
+
 // The effect search's free exposure ratio is linearised at the pair's r; on the vivo X6S pair 3 (EXIF 6.25, the
 // images' own r 1.96) it ran away to 0.0027 and the report named an exposure-ratio mismatch "r 0.0027". A ratio the
 // fitter itself would not consider (crf_fitter.hpp) is not named; a named mismatch always carries one it would.
@@ -606,12 +619,7 @@ TEST(CalibrateRealPairs, EffectSearchNamesNoExposureRatioOutsideTheFittersRange)
   bool runaway_seen = false;
   for (int i = 1; i <= 3; ++i) {
     const std::string n = std::to_string(i);
-    const io::LoadedPair pair = io::loadPair(dir / ("noisy_" + n + ".jpg"), dir / ("blurred_" + n + ".jpg"));
-    ASSERT_TRUE(pair.exif_ratio.has_value());
-    PairCalibrationOptions options;
-    options.band.replicates = 0;
-    options.fit.nominal_ratio = pair.exif_ratio->ratio();
-    const PairCalibrationResult result = calibratePair(pair.sharp.image, pair.blurred.image, options);
+    const PairCalibrationResult result = calibrateVivoPairWithoutBand(dir, i);
     const EffectEntry* entry = result.effects.find("exposure_ratio_mismatch");
     ASSERT_NE(entry, nullptr) << "pair " << n;
     const double free_ratio = entry->parameters.at("fitted_ratio");
@@ -636,12 +644,7 @@ TEST(CalibrateRealPairs, EffectTableNumbersAreMeasuredOrMarkedAsRunaways) {
   if (test::sharedData().empty() || !fs::exists(dir)) GTEST_SKIP() << "../shared/data absent";
   for (int i = 1; i <= 3; ++i) {
     const std::string n = std::to_string(i);
-    const io::LoadedPair pair = io::loadPair(dir / ("noisy_" + n + ".jpg"), dir / ("blurred_" + n + ".jpg"));
-    ASSERT_TRUE(pair.exif_ratio.has_value());
-    PairCalibrationOptions options;
-    options.band.replicates = 0;
-    options.fit.nominal_ratio = pair.exif_ratio->ratio();
-    const PairCalibrationResult result = calibratePair(pair.sharp.image, pair.blurred.image, options);
+    const PairCalibrationResult result = calibrateVivoPairWithoutBand(dir, i);
     const EffectEntry* noise = result.effects.find("signal_dependent_noise");
     ASSERT_TRUE(noise != nullptr && noise->tested) << "pair " << n;
     double lowest = 1e300, highest = 0;
