@@ -286,8 +286,6 @@ TEST(CalibrateCli, DifferentScenesAreRefused) {
       << r.output;
 }
 
-// The same scene, blurred: the same-scene correlation stays far above its threshold (the refusal above is not a
-// refusal of every --no-register pair).
 // A grey pair given as aligned, one kernel estimate, no rounds, no effects: the pair checks and the kernel stage only.
 PairCalibrationOptions quickGreyPairOptions() {
   PairCalibrationOptions options;
@@ -298,6 +296,8 @@ PairCalibrationOptions quickGreyPairOptions() {
   return options;
 }
 
+// The same scene, blurred: the same-scene correlation stays far above its threshold (the refusal above is not a
+// refusal of every --no-register pair).
 TEST(CalibratePairChecks, SameSceneBlurredPasses) {
   cv::Mat blurred;
   cv::filter2D(test::levinImage(1), blurred, -1, test::levinKernel(2), cv::Point(-1, -1), 0, cv::BORDER_REFLECT);

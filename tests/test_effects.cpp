@@ -190,15 +190,15 @@ TEST(Effects, SignalDependentNoiseIsFound) {
 
 // The size of the level dependence is read over the levels the sharp shot covers (the fit's levels), not extrapolated
 // to 0.1–0.9: in a dark shot the bins span a small part of [0, 1], and the planted law's variance ratio across that
-// span is s^(span/0.8). (Extrapolated, a dark real shot's σ 0.2 → 0.5 of a level over levels
-// 0.01–0.06 read as a contrast of 5·10¹³.)
+// span is s^(span/0.8). (Extrapolated, the phone's pair 2, σ 0.2 → 0.5 of a level over levels 0.01–0.06, read as a
+// contrast of 5·10¹³.)
 TEST(EffectsNoise, ContrastIsTheVarianceRatioAcrossTheCoveredLevels) {
   const ResponseModel truth = TableModel{io::readCurveTable(samples() / "camera_curves" / "CanonPowerShotS50.csv")};
   PlantingOptions po;
   po.effect = "signal_dependent_noise";
   po.strength = 6;
   po.ratio = 6;
-  po.exposure /= 40;  // a dark short shot, as the phone's pair 2 (its levels up to 0.06)
+  po.exposure /= 40;  // a dark short shot (the phone's pair 2 is darker still: its levels reach 0.06)
   po.seed = 12;
   const PlantedPair pair = plantEffect(pairOfPhotos(2, 4), truth, levinKernel(3), po);
   PairCalibrationOptions options = calibrationOptions({pairOfPhotos(2, 4), "CanonPowerShotS50", 3, 6, false}, pair);

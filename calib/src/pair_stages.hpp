@@ -124,8 +124,9 @@ cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::M
 // The first kernel (or the given one) with the kernel-aware registration refinement; sets state.kernel.
 void estimateFirstKernel(PairCalibrationState& state);
 // Where the kernel's pixels went, for a failed estimate's message: the share of the overlap that is usable and
-// what removed the rest (the sharp shot's black, either shot's clipped highlights), e.g. "usable: 4 % of the
-// overlap; the sharp shot is black over 78 %, the blurred one clipped over 9 %".
+// what removed the rest (the sharp shot's black, either shot's clipped highlights), e.g. "usable: 18 % of the
+// overlap; the sharp shot is black over 66 %, clipped over 1 %, the blurred one clipped over 9 %" (and, black over
+// half of it or more, that a brighter short exposure would leave more).
 std::string usablePixelsNote(const PairCalibrationState& state);
 // One kernel estimate on the canvas (s, b: canvas images); per_tile: also the tiles' own kernels.
 KernelEstimate estimateCanvasKernel(PairCalibrationState& state, const cv::Mat& s, const cv::Mat& b, bool per_tile,
