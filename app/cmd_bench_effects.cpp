@@ -76,6 +76,7 @@ struct EffectsArgs {
   std::string sharp_noise = "auto";
   std::string noise_camera = "LGE Nexus 5";  // sensor: whose darktable profile (as `bench pairs`)
   std::string noise_profiles;                // sensor: darktable noiseprofiles.json (default: io::defaultNoiseProfiles)
+  std::string pairs_out;  // each case's pairs as calibrated (after the JPEG round trip) and its truth, one directory each
 };
 
 // Pairs of effects planted together (--two-effects): each pairs effects whose detectors compete for the same misfit.
@@ -223,8 +224,33 @@ Setup makeSetup(const Sources& src, const std::string& effect, int seed, double 
   return s;
 }
 
+// The directory name of a case in --pairs-out: the label without spaces or brackets, and the seed.
+std::string caseDirectory(const std::string& effect, int seed) {
+  std::string name = effect == kNoneEstimated ? "none-estimated" : effect;
+  return name + "_seed" + std::to_string(seed);
+}
+
+// --pairs-out: the pair exactly as calibrated (8-bit PNG, after the JPEG round trip), with `prefix` "" for the planted
+// pair and "twin_" for its clean twin; the planted pair also gets its kernel and a truth.json that says how the bench
+// calibrated it, so that `crfcal calibrate` can re-run a case.
+void writeCasePair(const std::filesystem::path& dir, const std::string& prefix, const PlantedPair& pair,
+                   const Setup& s, const EffectsArgs& args, const std::string& effect, int seed) {
+  std::filesystem::create_directories(dir);
+  io::writeImage(dir / (prefix + "sharp.png"), pair.sharp);
+  io::writeImage(dir / (prefix + "blurred.png"), pair.blurred);
+  if (!prefix.empty()) return;
+  io::writeKernelText(dir / "kernel.txt", s.kernel);
+  const nlohmann::json truth = {{"effect", effect}, {"seed", seed}, {"strength", pair.strength},
+                                {"detail", pair.detail}, {"exposure_ratio", pair.true_ratio},
+                                {"exif_ratio", pair.exif_ratio}, {"plateau_intensity", pair.plateau_intensity},
+                                {"inverse_crf", sampleInverse(s.truth)},
+                                {"kernel_given", !s.calibration.given_kernel.empty()},
+                                {"registered", s.calibration.register_pair}, {"jpeg_quality", args.jpeg_quality}};
+  io::writeTextFile(dir / "truth.json", truth.dump(1) + "\n");
+}
+
 CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::string& effect, int seed, double factor,
-                   bool effects_on) {
+                   bool effects_on, const io::OutputDirectory* pairs_out = nullptr) {
   Setup s = makeSetup(src, effect, seed, factor, args.form == "held-out" ? "held_out" : "detector", args.ratio,
                       args.handheld);
   CaseResult r;
@@ -234,12 +260,14 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
   const auto truth = sampleInverse(s.truth);
   const auto t0 = std::chrono::steady_clock::now();
   try {
-    auto calibrate = [&](const PlantingOptions& po) {
+    auto calibrate = [&](const PlantingOptions& po, const std::string& written_as) {
       PlantedPair pair = plantEffect(s.photo, s.truth, s.kernel, po);
       if (args.jpeg_quality > 0) {
         pair.sharp = io::jpegRoundTrip(pair.sharp, args.jpeg_quality);
         pair.blurred = io::jpegRoundTrip(pair.blurred, args.jpeg_quality);
       }
+      if (pairs_out)
+        writeCasePair(pairs_out->file(caseDirectory(effect, seed)), written_as, pair, s, args, effect, seed);
       PairCalibrationOptions options = s.calibration;
       options.fit.nominal_ratio = pair.exif_ratio;
       options.effects.enabled = effects_on;
@@ -257,7 +285,7 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
       return curveRmse(std::vector<double>(phi.begin(), phi.begin() + top + 1),
                        std::vector<double>(truth.begin(), truth.begin() + top + 1));
     };
-    const PairCalibrationResult result = calibrate(s.planting);
+    const PairCalibrationResult result = calibrate(s.planting, "");
     r.detected = result.effects.detected();
     const std::vector<std::string> planted_names = plantedNames(effect);
     r.hit = std::all_of(planted_names.begin(), planted_names.end(), [&](const std::string& name) {
@@ -277,7 +305,7 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
       // the plateau), so that "clean-case accuracy" means the accuracy reachable from the same information.
       if (planted.plateau_intensity < 1)
         s.calibration.fit.saturation_high = std::min(s.calibration.fit.saturation_high, planted.plateau_intensity - 0.5 / 255);
-      const PairCalibrationResult twin = calibrate(clean);
+      const PairCalibrationResult twin = calibrate(clean, "twin_");
       r.rmse_clean = rmse((twin.base_fits.empty() ? twin.fits : twin.base_fits).at("G").inverse_crf);
     }
     r.phi_ok = r.rmse <= r.rmse_clean + kPhiTolerance;
@@ -372,8 +400,11 @@ std::string confusionMatrix(const std::vector<std::string>& labels, const std::v
 }
 
 int runEffects(const EffectsArgs& args) {
-  const io::OutputPolicy policy{"bench effects", {}, args.force};
+  std::vector<fs::path> inputs(args.photos.begin(), args.photos.end());
+  const io::OutputPolicy policy{"bench effects", inputs, args.force};
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
+  std::optional<io::OutputDirectory> pairs_out;  // refused or unwritable: fails now
+  if (!args.pairs_out.empty()) pairs_out.emplace(args.pairs_out, policy);
   Sources src = args.photos.empty() ? loadSources() : loadPhotos(args.photos, loadSources());
   if (args.sharp_noise == "sensor" || (args.sharp_noise == "auto" && args.ratio > 0))
     src.noise_camera = io::readCameraNoiseProfile(
@@ -401,7 +432,7 @@ int runEffects(const EffectsArgs& args) {
   cv::parallel_for_(cv::Range(0, static_cast<int>(cases.size())), [&](const cv::Range& range) {
     for (int i = range.start; i < range.end; ++i) {
       const auto& [effect, seed] = cases[static_cast<std::size_t>(i)];
-      const CaseResult r = runCase(src, args, effect, seed, 0, true);
+      const CaseResult r = runCase(src, args, effect, seed, 0, true, pairs_out ? &*pairs_out : nullptr);
       std::string names;
       for (const auto& d : r.detected) names += (names.empty() ? "" : ",") + d;
       {
@@ -457,6 +488,7 @@ int runEffects(const EffectsArgs& args) {
            "estimated)': clean pairs through the kernel-estimating path, where spatially_varying_blur is tested.)\n";
   table << confusionMatrix(effects, results);
   std::printf("%s", table.str().c_str());
+  if (pairs_out) pairs_out->commit();
   if (!args.json.empty())
     io::writeJsonOutput(args.json,
                         {{"cases", json}, {"form", args.form}, {"ratio", args.ratio}, {"jpeg_quality", args.jpeg_quality},
@@ -523,6 +555,9 @@ const BenchRegistration registration(
           ->check(CLI::ExistingFile);
       command.add_flag("--handheld", args->handheld,
                        "Handheld misregistration: B shifted 2-4 px and turned by up to 0.3 degrees; registration on");
+      command.add_option("--pairs-out", args->pairs_out,
+                         "Also write every case's pair as calibrated (PNG, after the JPEG round trip; twin_*.png its "
+                         "clean twin), kernel.txt and truth.json here, one directory per case (EFFECT_seedN)");
       return [args] { return runEffects(*args); };
     });
 

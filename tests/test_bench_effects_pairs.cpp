@@ -1,0 +1,64 @@
+// `crfcal bench effects --pairs-out DIR`: every case's pair as the bench calibrated it, so that a case can be re-run
+// and looked at outside the bench (how the r ≈ 6 "no edges" stops and the missed offsets were diagnosed, stop 42).
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "test_support.hpp"
+
+namespace crfcal {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string quote(const fs::path& p) { return "'" + p.string() + "'"; }
+
+nlohmann::json readJson(const fs::path& path) {
+  std::ifstream in(path);
+  return nlohmann::json::parse(in);
+}
+
+double rmse(const std::vector<double>& a, const std::vector<double>& b) {
+  double sum = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) sum += (a[i] - b[i]) * (a[i] - b[i]);
+  return std::sqrt(sum / static_cast<double>(a.size()));
+}
+
+// The written clean pair, calibrated by `crfcal calibrate` the way the bench calibrated it (its kernel given, not
+// registered, green), gives the bench's own φ error against the written truth.
+TEST(BenchEffectsPairsOut, WrittenPairCalibratesBackToTheBenchesResult) {
+  test::TempDir root;
+  const fs::path pairs = root / "pairs", json = root / "cases.json", report = root / "calibration";
+  const auto bench = test::run(quote(test::crfcalBinary()) + " bench effects --effect none --seeds 1 --pairs-out " +
+                               quote(pairs) + " --json " + quote(json));
+  ASSERT_EQ(bench.exit_code, 0) << bench.output;
+  const fs::path dir = pairs / "none_seed1";
+  for (const char* name : {"sharp.png", "blurred.png", "kernel.txt", "truth.json"})
+    ASSERT_TRUE(fs::exists(dir / name)) << name << "\n" << bench.output;
+  EXPECT_FALSE(fs::exists(dir / "twin_sharp.png")) << "a clean case has no twin of its own";
+  const nlohmann::json truth = readJson(dir / "truth.json");
+  EXPECT_TRUE(truth.at("kernel_given").get<bool>());
+  EXPECT_FALSE(truth.at("registered").get<bool>());
+  const double bench_rmse = readJson(json).at("cases").at(0).at("phi_rmse").get<double>();
+
+  char ratio[32];
+  std::snprintf(ratio, sizeof ratio, "%.17g", truth.at("exif_ratio").get<double>());
+  const auto calibrate = test::run(quote(test::crfcalBinary()) + " calibrate -q " + quote(dir / "sharp.png") + " " +
+                                   quote(dir / "blurred.png") + " --ratio " + ratio + " --kernel " +
+                                   quote(dir / "kernel.txt") + " --no-register --channels g -o " + quote(report));
+  ASSERT_EQ(calibrate.exit_code, 0) << calibrate.output;
+  const nlohmann::json fitted = readJson(report / "report.json").at("inverse_crf");
+  const std::vector<double> phi = (fitted.is_object() ? fitted.at("G") : fitted).get<std::vector<double>>();
+  const std::vector<double> phi_true = truth.at("inverse_crf").get<std::vector<double>>();
+  ASSERT_EQ(phi.size(), phi_true.size());
+  EXPECT_NEAR(rmse(phi, phi_true), bench_rmse, 1e-6) << "the bench's case, re-run from the written files";
+}
+
+}  // namespace
+}  // namespace crfcal
