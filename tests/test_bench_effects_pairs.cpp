@@ -17,12 +17,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string quote(const fs::path& p) { return "'" + p.string() + "'"; }
-
-nlohmann::json readJson(const fs::path& path) {
-  std::ifstream in(path);
-  return nlohmann::json::parse(in);
-}
+using test::quote;
+using test::readJson;
 
 double rmse(const std::vector<double>& a, const std::vector<double>& b) {
   double sum = 0;

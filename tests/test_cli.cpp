@@ -16,13 +16,6 @@ namespace crfcal::test {
 namespace {
 namespace fs = std::filesystem;
 
-std::string quote(const fs::path& p) { return "'" + p.string() + "'"; }
-
-nlohmann::json readJson(const fs::path& path) {
-  std::ifstream in(path);
-  return nlohmann::json::parse(in);
-}
-
 TEST(Cli, VersionAndHelp) {
   const auto version = run(quote(crfcalBinary()) + " --version");
   EXPECT_EQ(version.exit_code, 0);

@@ -348,7 +348,7 @@ TEST(Deconvolution, RejectsBadOptionsAndKernels) {
 
 // ---- crfcal deblur ----------------------------------------------------------------------------------------------
 
-std::string quote(const std::filesystem::path& path) { return "'" + path.string() + "'"; }
+using test::quote;
 
 int lineCount(const std::string& text) {
   int lines = 0;

@@ -159,7 +159,9 @@ TEST(EffectAttribution, CleanRealRegimePairsDarkestCodesAreNotNamedAnOffset) {
   for (const auto& e : report.at("effects")) {
     const bool testable = e.at("name") != "channel_mixing" && e.at("name") != "spatially_varying_blur";  // G, kernel
     ASSERT_TRUE(e.at("tested").get<bool>() || !testable) << e.at("name");
-    if (e.at("name") != "signal_dependent_noise") EXPECT_FALSE(e.at("detected").get<bool>()) << e.dump();
+    if (e.at("name") != "signal_dependent_noise") {
+      EXPECT_FALSE(e.at("detected").get<bool>()) << e.dump();
+    }
   }
   EXPECT_LE(std::abs(report.at("exposure_ratio").at("fitted").get<double>() / true_ratio - 1), 0.05)
       << calibrated.output;

@@ -50,7 +50,7 @@ struct PairSetup {
   int kernel = 2;
   double ratio = 1.2;
   bool estimate_kernel = false;
-  std::optional<SensorNoise> sensor;  // the sharp shot's noise on its irradiance (PlantingOptions::sharp_sensor_noise)
+  std::optional<SensorNoise> sensor = std::nullopt;  // the sharp shot's noise on its irradiance (sharp_sensor_noise)
 };
 
 struct Case {

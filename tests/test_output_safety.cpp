@@ -35,7 +35,7 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-std::string quote(const fs::path& p) { return "'" + p.string() + "'"; }
+using test::quote;
 std::string bin() { return quote(test::crfcalBinary()); }
 
 std::string contents(const fs::path& path) {

@@ -74,7 +74,7 @@ TEST(ResidualDeconvolution, RejectsSharpShotOfOtherSizeAsTheSharpImagesFault) {
   EXPECT_THROW(options.check(), InvalidInput);
 }
 
-std::string quote(const std::filesystem::path& path) { return "'" + path.string() + "'"; }
+using test::quote;
 
 int lineCount(const std::string& text) {
   return static_cast<int>(std::count(text.begin(), text.end(), '\n')) + (!text.empty() && text.back() != '\n');

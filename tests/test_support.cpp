@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <fstream>
 #include <random>
 
 #include <sys/wait.h>
@@ -13,6 +14,13 @@
 
 namespace crfcal::test {
 namespace fs = std::filesystem;
+
+std::string quote(const fs::path& path) { return "'" + path.string() + "'"; }
+
+nlohmann::json readJson(const fs::path& path) {
+  std::ifstream in(path);
+  return nlohmann::json::parse(in);
+}
 
 fs::path samples() { return CRFCAL_SAMPLES; }
 fs::path crfcalBinary() { return CRFCAL_BINARY; }

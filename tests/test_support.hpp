@@ -3,6 +3,7 @@
 #include <filesystem>
 #include <string>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
 #include "crfcal/crf_fitter.hpp"
@@ -13,6 +14,8 @@
 namespace crfcal::test {
 
 std::filesystem::path samples();            // the project's samples/ directory
+std::string quote(const std::filesystem::path& path);  // the path single-quoted for a shell command line
+nlohmann::json readJson(const std::filesystem::path& path);  // a JSON file, parsed
 std::filesystem::path crfcalBinary();       // the built crfcal command
 std::filesystem::path sharedData();         // ../shared/data (or $CRFCAL_SHARED_DATA); empty if absent
 cv::Mat levinImage(int index);              // samples/levin09/im<index>.png as CV_64F in [0,1]
