@@ -17,6 +17,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <filesystem>
 #include <memory>
 #include <mutex>
@@ -224,6 +225,15 @@ Setup makeSetup(const Sources& src, const std::string& effect, int seed, double 
   return s;
 }
 
+// --pairs-out: the staged directory, and the first write that failed (the bench then stops before committing it:
+// nothing half-written).
+struct PairsOutput {
+  io::OutputDirectory directory;
+  std::mutex mutex;
+  std::exception_ptr first_error;
+  PairsOutput(const std::string& path, const io::OutputPolicy& policy) : directory(path, policy) {}
+};
+
 // The directory name of a case in --pairs-out: the label without spaces or brackets, and the seed.
 std::string caseDirectory(const std::string& effect, int seed) {
   std::string name = effect == kNoneEstimated ? "none-estimated" : effect;
@@ -250,7 +260,7 @@ void writeCasePair(const std::filesystem::path& dir, const std::string& prefix, 
 }
 
 CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::string& effect, int seed, double factor,
-                   bool effects_on, const io::OutputDirectory* pairs_out = nullptr) {
+                   bool effects_on, PairsOutput* pairs_out = nullptr) {
   Setup s = makeSetup(src, effect, seed, factor, args.form == "held-out" ? "held_out" : "detector", args.ratio,
                       args.handheld);
   CaseResult r;
@@ -266,8 +276,15 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
         pair.sharp = io::jpegRoundTrip(pair.sharp, args.jpeg_quality);
         pair.blurred = io::jpegRoundTrip(pair.blurred, args.jpeg_quality);
       }
-      if (pairs_out)
-        writeCasePair(pairs_out->file(caseDirectory(effect, seed)), written_as, pair, s, args, effect, seed);
+      if (pairs_out) {
+        try {
+          writeCasePair(pairs_out->directory.file(caseDirectory(effect, seed)), written_as, pair, s, args, effect,
+                        seed);
+        } catch (...) {
+          const std::lock_guard<std::mutex> lock(pairs_out->mutex);
+          if (!pairs_out->first_error) pairs_out->first_error = std::current_exception();
+        }
+      }
       PairCalibrationOptions options = s.calibration;
       options.fit.nominal_ratio = pair.exif_ratio;
       options.effects.enabled = effects_on;
@@ -403,7 +420,7 @@ int runEffects(const EffectsArgs& args) {
   std::vector<fs::path> inputs(args.photos.begin(), args.photos.end());
   const io::OutputPolicy policy{"bench effects", inputs, args.force};
   if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
-  std::optional<io::OutputDirectory> pairs_out;  // refused or unwritable: fails now
+  std::optional<PairsOutput> pairs_out;  // refused or unwritable: fails now
   if (!args.pairs_out.empty()) pairs_out.emplace(args.pairs_out, policy);
   Sources src = args.photos.empty() ? loadSources() : loadPhotos(args.photos, loadSources());
   if (args.sharp_noise == "sensor" || (args.sharp_noise == "auto" && args.ratio > 0))
@@ -488,7 +505,10 @@ int runEffects(const EffectsArgs& args) {
            "estimated)': clean pairs through the kernel-estimating path, where spatially_varying_blur is tested.)\n";
   table << confusionMatrix(effects, results);
   std::printf("%s", table.str().c_str());
-  if (pairs_out) pairs_out->commit();
+  if (pairs_out) {
+    if (pairs_out->first_error) std::rethrow_exception(pairs_out->first_error);
+    pairs_out->directory.commit();
+  }
   if (!args.json.empty())
     io::writeJsonOutput(args.json,
                         {{"cases", json}, {"form", args.form}, {"ratio", args.ratio}, {"jpeg_quality", args.jpeg_quality},
