@@ -310,6 +310,9 @@ Coefficients coefficients(const Spec& spec, const ChannelFit& f, int self, int n
 
 // Whether an extended model's parameters are physical (a runaway fit is not an explanation).
 bool physical(const Spec& spec, const Evaluation& ev, int nc, int terms);
+// Whether a vignetting's corner gain 1 + v1 + v2 is one `physical` accepts (0.1–10: wider than the refit guard's
+// 0.5–2; outside it the linearised fit has run away).
+bool physicalCornerGain(double corner);
 // Whether a model's free scale can be the camera's exposure ratio: finite and inside the range the fitter itself
 // considers (kMinExposureRatio–kMaxExposureRatio, crf_fitter.hpp). The φ terms are linearised at the pair's r
 // (P_k = r·K⊗h_k(I) − h_k(B)), so a scale far from r is outside the model's validity (vivo X6S pair 3: 0.0027).

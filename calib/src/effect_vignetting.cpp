@@ -24,8 +24,7 @@ void describe(const EffectSearch& search, const Spec& spec, const Evaluation& ev
   const double corner = 1 + v.v1 + v.v2;
   e.detail = fmt("gain of B relative to I at the corner %.3f (1 + v1 rho^2 + v2 rho^4, v1 %.3f, v2 %.3f)", corner,
                  v.v1, v.v2);
-  // As `physical` (effect_problem.cpp) judges a candidate: such a gain is a runaway of the linearised fit.
-  if (!(corner > 0.1 && corner < 10)) e.detail += "; outside 0.1-10: not physical (a runaway of the linearised fit)";
+  if (!physicalCornerGain(corner)) e.detail += "; outside 0.1-10: not physical (a runaway of the linearised fit)";
 }
 
 // B' = ψ(φ(B) / g(ρ)), the gain floored at 0.05.
