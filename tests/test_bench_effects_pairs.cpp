@@ -1,5 +1,5 @@
 // `crfcal bench effects --pairs-out DIR`: every case's pair as the bench calibrated it, so that a case can be re-run
-// and looked at outside the bench (how the r ≈ 6 "no edges" stops and the missed offsets were diagnosed, stop 42).
+// and looked at outside the bench (how the r ≈ 6 "no edges" stops and the missed offsets were diagnosed).
 #include <cmath>
 #include <cstdio>
 #include <filesystem>

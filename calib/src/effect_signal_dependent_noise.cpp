@@ -106,9 +106,9 @@ void fillBins(const std::vector<Item>& items, const Layout& layout, int bins, Bi
 
 // Size of the level dependence: the log-variance trend over the bins, as the variance ratio across the levels the
 // bins cover, over at most 0.8 of a level (the 0.1–0.9 of min_noise_contrast's choice). What the size decides is how
-// much homoscedastic weights cost the fit, and the fit has only these levels. (It was the ratio between levels 0.1
-// and 0.9 whatever the bins covered until stop 42: on a dark sharp shot whose bins span 0.01–0.06 that extrapolation
-// turned σ 0.2 → 0.5 of a level into a contrast of 5·10¹³.)
+// much homoscedastic weights cost the fit, and the fit has only these levels. (Extrapolated to 0.1–0.9 whatever the
+// bins cover, a dark sharp shot whose bins span 0.01–0.06 turns σ 0.2 → 0.5 of a level into a contrast of 5·10¹³:
+// vivo X6S pair 2, docs/RESULTS.md#noise-contrast.)
 double levelContrast(const Bins& bn, int bins) {
   double sw = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
   double lowest = 1, highest = 0;

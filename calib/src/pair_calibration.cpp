@@ -76,7 +76,7 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
     detail::estimateFirstKernel(state);
   } catch (const InvalidInput& e) {
     // Where the kernel's pixels went: a night scene shot in the real regime is black over most of the short
-    // exposure, which "no edges" alone would hide (stop 42: St. Louis at night, r = 8, black over 66 % of the overlap).
+    // exposure, which "no edges" alone would hide (measured: St. Louis at night, r = 8, black over 66 % of the overlap; docs/RESULTS.md#real-regime-sweep).
     const std::string reason = e.reason() + " (" + detail::usablePixelsNote(state) + ")";
     // A kernel that cannot explain one shot by the other, on a pair whose edges barely correlate: two scenes
     // (issue 15: the size-limit advice would only lead to "no edges").
