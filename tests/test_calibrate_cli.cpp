@@ -639,6 +639,22 @@ TEST(CalibrateRealPairs, EffectSearchNamesNoExposureRatioOutsideTheFittersRange)
 // The effect table a user reads on the phone pairs: the noise contrast is a variance ratio the bins' σ can carry (it
 // was extrapolated to 4.9e13 on pair 2's dark sharp shot), and a runaway vignetting or colour mix says so instead of
 // printing a corner gain of 30 or a mix of "inf" as if measured.
+// vivo X6S pair 1 (a 0.84 px blur): r is held at EXIF (3.125) by the small-blur rule, since the blur cannot separate
+// φ^γ, r^γ from φ, r. The effect diagnostics' free r meets the same ambiguity (1.85 here, while the shots' brightness
+// gives 3.7): it must not be named a mismatch, and its entry says why.
+TEST(CalibrateRealPairs, RatioHeldForASmallBlurIsNotNamedAMismatch) {
+  const fs::path dir = test::sharedData() / "pairs" / "vivo_x6s";
+  if (test::sharedData().empty() || !fs::exists(dir)) GTEST_SKIP() << "../shared/data absent";
+  const PairCalibrationResult result = calibrateVivoPairWithoutBand(dir, 1);
+  ASSERT_TRUE(result.ratio_fixed_by_small_blur);
+  const EffectEntry* ratio = result.effects.find("exposure_ratio_mismatch");
+  ASSERT_NE(ratio, nullptr);
+  EXPECT_FALSE(ratio->detected) << ratio->detail;
+  EXPECT_NE(ratio->detail.find("blur is too small"), std::string::npos) << ratio->detail;
+  const std::vector<std::string> named = result.effects.detected();
+  EXPECT_EQ(std::count(named.begin(), named.end(), "exposure_ratio_mismatch"), 0);
+}
+
 TEST(CalibrateRealPairs, EffectTableNumbersAreMeasuredOrMarkedAsRunaways) {
   const fs::path dir = test::sharedData() / "pairs" / "vivo_x6s";
   if (test::sharedData().empty() || !fs::exists(dir)) GTEST_SKIP() << "../shared/data absent";

@@ -99,7 +99,11 @@ void run(EffectSearch& search) {
   // verdict's interval of r excluded the planted r in 10 of 20 detector-form pairs; even the side of 1 it implies
   // was wrong in 6 of 20 — blur moves the quantiles; docs/RESULTS.md#effects-runaway-ratio).
   const bool possible_ratio = fittableExposureRatio(a);
-  const bool beyond_tolerance = possible_ratio && std::abs(rel) > options.ratio_tolerance;
+  // The pipeline held r at EXIF because the blur cannot fix it (pair_stage_rounds.cpp): the free r here meets the
+  // same ambiguity, and naming it a mismatch would contradict the reported r (vivo X6S pair 1, a 0.84 px blur: EXIF
+  // 3.125, the shots' brightness 3.7, the free r 1.85 named a 41 % mismatch).
+  const bool undecidable = in.ratio_held_for_small_blur;
+  const bool beyond_tolerance = possible_ratio && !undecidable && std::abs(rel) > options.ratio_tolerance;
   Spec fixed = search.current;
   fixed.fixed_scale = true;
   fixed.scale = in.nominal_ratio;
@@ -118,6 +122,8 @@ void run(EffectSearch& search) {
                  100 * rel) +
              fmt("%.0f%%); ", 100 * options.ratio_tolerance) +
              (beyond_tolerance ? "phi from the free-r fit"
+              : undecidable     ? "not named: the blur is too small to tell r from phi's exponent (r held at EXIF); "
+                                  "r = EXIF tested around the current phi"
               : possible_ratio  ? "within tolerance: r = EXIF tested around the current phi"
                                 : fmt("not a ratio: outside the %g-%g the fitter considers (a runaway of the "
                                       "linearised search), not named; r = EXIF tested around the current phi",

@@ -28,6 +28,7 @@ void diagnoseResidualEffects(PairCalibrationState& state) {
   ei.kernel = state.kernel;
   ei.kernel_estimated = result.kernel_estimated;
   ei.nominal_ratio = options.fit.nominal_ratio;  // EXIF / --ratio (fit_options' may hold the combined r)
+  ei.ratio_held_for_small_blur = result.ratio_fixed_by_small_blur;
   ei.centre = cv::Point2d((state.sharp.cols - 1) / 2.0 - window.x, (state.sharp.rows - 1) / 2.0 - window.y);
   ei.corner_radius = 0.5 * std::hypot(state.sharp.cols, state.sharp.rows);
   ei.valid = state.overlap(window);

@@ -165,6 +165,10 @@ struct EffectInputs {
   cv::Mat kernel;                                  // the global kernel
   bool kernel_estimated = true;                    // false (given kernel): spatially_varying_blur not tested
   double nominal_ratio = 0;  // EXIF or --ratio (the r the fit starts from); ≤ 0: unknown (exposure_ratio_mismatch not tested)
+  // r held at nominal_ratio because the blur is too small to fix it (PairCalibrationResult::ratio_fixed_by_small_blur):
+  // a free r then moves along the φ^γ, r^γ ambiguity the blur cannot resolve (biased low, docs/RESULTS.md#small-blur),
+  // so exposure_ratio_mismatch is tested around the current φ but not named.
+  bool ratio_held_for_small_blur = false;
   cv::Point2d centre{-1, -1};                      // optical centre in window coordinates (< 0: window centre)
   double corner_radius = 0;                        // normalising radius (≤ 0: half-diagonal of the window)
   cv::Mat valid;                                   // optional CV_8U: usable pixels (registration overlap)
