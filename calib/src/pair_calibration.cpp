@@ -73,11 +73,11 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   detail::checkExposureAndEdges(state);
   detail::registerShots(state);
   try {
-    detail::estimateFirstKernel(state);
+    detail::estimateFirstKernelAdmittingBlack(state);
   } catch (const InvalidInput& e) {
-    // Where the kernel's pixels went: a night scene shot in the real regime is black over most of the short
-    // exposure, which "no edges" alone would hide (measured: St. Louis at night, r = 8, black over 66 % of the overlap; docs/RESULTS.md#real-regime-sweep).
-    const std::string reason = e.reason() + " (" + detail::usablePixelsNote(state) + ")";
+    // The reason names where the kernel's pixels went (usablePixelsNote): a pair whose sharp shot is black where the
+    // blurred one is clipped, or flat, has no edges even with its black admitted.
+    const std::string& reason = e.reason();
     // A kernel that cannot explain one shot by the other, on a pair whose edges barely correlate: two scenes
     // (issue 15: the size-limit advice would only lead to "no edges").
     if (state.same_scene_correlation >= detail::doubtful_same_scene_correlation)

@@ -64,7 +64,8 @@ void warpBlurredShot(PairCalibrationState& state) {
 // Pixels usable for the kernel: inside the overlap and unclipped in both shots (the estimator itself keeps only
 // equations whose whole window is usable); the edge-rich tiles among them and the canvas they make.
 void selectKernelTiles(PairCalibrationState& state) {
-  const cv::Mat bad = (state.blurred_g8 >= state.clip_high) | (state.blurred_g8 <= state.clip_low) | state.sharp_clipped;
+  const cv::Mat sharp_bad = state.kernel_admits_sharp_black ? state.sharp_clipped & ~state.sharp_black : state.sharp_clipped;
+  const cv::Mat bad = (state.blurred_g8 >= state.clip_high) | (state.blurred_g8 <= state.clip_low) | sharp_bad;
   cv::bitwise_and(state.overlap, ~dilateBy(bad, 3), state.usable);
   state.result.tiles = selectTiles(state.sharp_g8, state.usable, state.options.tiles);
   state.canvas = makeCanvas(state.sharp_g8, state.blurred_g8, state.usable, state.result.tiles,
@@ -161,7 +162,8 @@ void registerShots(PairCalibrationState& state) {
   // I's clipped regions, by its local median (a per-pixel test would select pixels by their noise).
   cv::Mat median;
   cv::medianBlur(state.sharp_g8, median, 3);
-  state.sharp_clipped = (median >= state.clip_high) | (median <= state.clip_low);
+  state.sharp_black = median <= state.clip_low;
+  state.sharp_clipped = (median >= state.clip_high) | state.sharp_black;
 
   warpBlurredShot(state);
   checkSameScene(state);

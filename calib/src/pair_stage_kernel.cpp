@@ -112,9 +112,7 @@ std::string usablePixelsNote(const PairCalibrationState& state) {
     cv::bitwise_and(mask, state.overlap, inside);
     return 100.0 * cv::countNonZero(inside) / overlap;
   };
-  cv::Mat sharp_black;
-  cv::medianBlur(state.sharp_g8, sharp_black, 3);  // as the align stage marks I's clipped regions
-  sharp_black = sharp_black <= state.clip_low;
+  const cv::Mat& sharp_black = state.sharp_black;
   const double black = share(sharp_black);
   char buffer[300];
   std::snprintf(buffer, sizeof buffer,
@@ -124,6 +122,39 @@ std::string usablePixelsNote(const PairCalibrationState& state) {
                 share(state.blurred_g8 >= state.clip_high),
                 black >= 50 ? ": a brighter short exposure (a smaller exposure ratio) would leave more" : "");
   return buffer;
+}
+
+void estimateFirstKernelAdmittingBlack(PairCalibrationState& state) {
+  std::string note;
+  try {
+    estimateFirstKernel(state);
+    return;
+  } catch (const InvalidInput& e) {
+    note = usablePixelsNote(state);  // of the first attempt, for the message if the retry fails too
+    cv::Mat black_in_overlap;
+    cv::bitwise_and(state.sharp_black, state.overlap, black_in_overlap);
+    const int black = cv::countNonZero(black_in_overlap);
+    // Only a pair whose two shots show one scene (a doubtful one keeps its two-scenes message, pair_calibration.cpp).
+    if (state.kernel_admits_sharp_black || black == 0 ||
+        state.same_scene_correlation < doubtful_same_scene_correlation)
+      throw InvalidInput(e.reason() + " (" + note + ")", e.subject());
+    state.kernel_admits_sharp_black = true;
+    state.report("kernel", 0, "no usable edges without the sharp shot's black areas: estimated again with them");
+    try {
+      alignToRegistration(state);
+      estimateFirstKernel(state);
+    } catch (const InvalidInput&) {
+      throw InvalidInput(e.reason() + " (" + note + ")", e.subject());
+    }
+    state.result.kernel_sharp_black_admitted = double(black) / std::max(1, cv::countNonZero(state.overlap));
+    char buffer[300];
+    std::snprintf(buffer, sizeof buffer,
+                  "the sharp shot is black over %.0f %% of the overlap, which left the kernel no usable edges: it "
+                  "was estimated with the black areas admitted (an edge into black loses its dark side); the verdict "
+                  "is at most weak. A brighter short exposure (a smaller exposure ratio) would avoid this",
+                  100 * state.result.kernel_sharp_black_admitted);
+    state.result.warnings.push_back(buffer);
+  }
 }
 
 void estimateFirstKernel(PairCalibrationState& state) {

@@ -176,6 +176,7 @@ void computeVerdict(PairCalibrationState& state) {
     if (const auto band = result.bands.find(name); band != result.bands.end() && !band->second.empty())
       e.shape_band_sigma = medianShapeSigma(band->second);
     e.inverse_crf = fit.inverse_crf;
+    e.kernel_sharp_black_admitted = result.kernel_sharp_black_admitted;
     const auto& modelled = result.chroma_model_channels;
     if (name != "G" && options.sharp_stored_chroma.subsampled() &&
         std::find(modelled.begin(), modelled.end(), name) == modelled.end())

@@ -61,7 +61,11 @@ struct PairCalibrationState {
   std::vector<cv::Mat> sharp_planes, blurred_planes;  // BGR order (one plane for grey)
   cv::Mat sharp_g8, blurred_own_g8;                   // G planes; the blurred one in its own frame
   double clip_high = 0, clip_low = 0;                 // fit.saturation_high/low in the images' codes
-  cv::Mat sharp_clipped;                              // I's clipped regions (CV_8U)
+  cv::Mat sharp_clipped;                              // I's clipped regions (CV_8U), highlights and black
+  cv::Mat sharp_black;                                // I's black regions (CV_8U), part of sharp_clipped
+  // The kernel's usable pixels keep I's black (a retry of a kernel estimate that found no usable windows:
+  // estimateFirstKernelAdmittingBlack).
+  bool kernel_admits_sharp_black = false;
 
   // align: everything that depends on the alignment (re-done after the kernel-aware refinement)
   cv::Mat blurred_g8;  // B's G plane resampled into the sharp frame
@@ -123,6 +127,11 @@ constexpr double doubtful_same_scene_correlation = 0.5;
 cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::Mat& mask);
 // The first kernel (or the given one) with the kernel-aware registration refinement; sets state.kernel.
 void estimateFirstKernel(PairCalibrationState& state);
+// estimateFirstKernel; when it fails and the sharp shot has black areas, made again with them admitted to the kernel's
+// usable pixels (the estimate works on gradients: a black region is flat and dropped by the estimator's texture
+// test, an edge into black loses only the black threshold of its step), and result.kernel_sharp_black_admitted set.
+// A pair that runs without them is unchanged. Rethrows the first failure, with usablePixelsNote, when the retry fails.
+void estimateFirstKernelAdmittingBlack(PairCalibrationState& state);
 // Where the kernel's pixels went, for a failed estimate's message: the share of the overlap that is usable and
 // what removed the rest (the sharp shot's black, either shot's clipped highlights), e.g. "usable: 18 % of the
 // overlap; the sharp shot is black over 66 %, clipped over 1 %, the blurred one clipped over 9 %" (and, black over

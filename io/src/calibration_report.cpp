@@ -116,6 +116,8 @@ json kernelJson(const PairCalibrationResult& result) {
   if (!result.kernel_estimated) return kernel;
   kernel["centroid"] = {result.kernel.centroid.x, result.kernel.centroid.y};
   kernel["blur_rms_radius_px"] = result.blur_radius;
+  // the sharp shot's black share when the estimate needed its black areas admitted (0: it did not)
+  kernel["sharp_black_admitted"] = result.kernel_sharp_black_admitted;
   kernel["equations"] = result.kernel.equations;
   kernel["border_mass"] = result.kernel.border_mass;
   kernel["relative_residual"] = result.kernel.relative_residual;

@@ -114,6 +114,8 @@ struct ChannelEvidence {
   // not the case). Its R and B at edges are rebuilt from chroma averaged over blocks after the tone curve; measured
   // on the bundled demo pair: φ_B 0.133 and φ_R 0.028 against G 0.0049 (docs/RESULTS.md#chroma) → weak.
   std::string pointwise_from_subsampled_chroma;
+  // PairCalibrationResult::kernel_sharp_black_admitted: > 0 → weak (the kernel rests on edges into black).
+  double kernel_sharp_black_admitted = 0;
 };
 
 struct ChannelVerdict {
