@@ -144,7 +144,7 @@ void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
   if (e.kernel_sharp_black_admitted > 0)
     j.find(VerdictLevel::weak,
            format("the kernel was estimated with the sharp shot's black areas admitted (black over %.0f %% of the "
-                  "overlap; without them no usable edges): an edge into black loses its dark side",
+                  "overlap; without them the estimate failed): an edge into black loses its dark side",
                   100 * e.kernel_sharp_black_admitted));
   if (!e.pointwise_from_subsampled_chroma.empty())
     j.find(VerdictLevel::weak, "fitted from a sharp JPEG with " + e.pointwise_from_subsampled_chroma +

@@ -139,7 +139,7 @@ void estimateFirstKernelAdmittingBlack(PairCalibrationState& state) {
         state.same_scene_correlation < doubtful_same_scene_correlation)
       throw InvalidInput(e.reason() + " (" + note + ")", e.subject());
     state.kernel_admits_sharp_black = true;
-    state.report("kernel", 0, "no usable edges without the sharp shot's black areas: estimated again with them");
+    state.report("kernel", 0, "failed without the sharp shot's black areas: estimated again with them");
     try {
       alignToRegistration(state);
       estimateFirstKernel(state);
@@ -149,9 +149,9 @@ void estimateFirstKernelAdmittingBlack(PairCalibrationState& state) {
     state.result.kernel_sharp_black_admitted = double(black) / std::max(1, cv::countNonZero(state.overlap));
     char buffer[300];
     std::snprintf(buffer, sizeof buffer,
-                  "the sharp shot is black over %.0f %% of the overlap, which left the kernel no usable edges: it "
-                  "was estimated with the black areas admitted (an edge into black loses its dark side); the verdict "
-                  "is at most weak. A brighter short exposure (a smaller exposure ratio) would avoid this",
+                  "the kernel estimate failed without the sharp shot's black areas (black over %.0f %% of the "
+                  "overlap): it was estimated with them admitted (an edge into black loses its dark side); the "
+                  "verdict is at most weak. A brighter short exposure (a smaller exposure ratio) would avoid this",
                   100 * state.result.kernel_sharp_black_admitted);
     state.result.warnings.push_back(buffer);
   }

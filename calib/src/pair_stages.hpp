@@ -63,7 +63,7 @@ struct PairCalibrationState {
   double clip_high = 0, clip_low = 0;                 // fit.saturation_high/low in the images' codes
   cv::Mat sharp_clipped;                              // I's clipped regions (CV_8U), highlights and black
   cv::Mat sharp_black;                                // I's black regions (CV_8U), part of sharp_clipped
-  // The kernel's usable pixels keep I's black (a retry of a kernel estimate that found no usable windows:
+  // The kernel's usable pixels keep I's black (the retry of a failed kernel estimate:
   // estimateFirstKernelAdmittingBlack).
   bool kernel_admits_sharp_black = false;
 
@@ -127,8 +127,8 @@ constexpr double doubtful_same_scene_correlation = 0.5;
 cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::Mat& mask);
 // The first kernel (or the given one) with the kernel-aware registration refinement; sets state.kernel.
 void estimateFirstKernel(PairCalibrationState& state);
-// estimateFirstKernel; when it fails and the sharp shot has black areas, made again with them admitted to the kernel's
-// usable pixels (the estimate works on gradients: a black region is flat and dropped by the estimator's texture
+// estimateFirstKernel; when it fails (no usable windows, or the kernel at its size limit) and the sharp shot has black
+// areas, made again with them admitted to the kernel's usable pixels (the estimate works on gradients: a black region is flat and dropped by the estimator's texture
 // test, an edge into black loses only the black threshold of its step), and result.kernel_sharp_black_admitted set.
 // A pair that runs without them is unchanged. Rethrows the first failure, with usablePixelsNote, when the retry fails.
 void estimateFirstKernelAdmittingBlack(PairCalibrationState& state);

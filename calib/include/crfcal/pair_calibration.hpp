@@ -136,8 +136,9 @@ struct PairCalibrationResult {
   std::map<std::string, CrfFitResult> fits;
   std::vector<CalibrationRound> rounds;
   double blur_radius = 0;                // RMS radius of the final kernel about its centroid, pixels
-  // > 0: the kernel estimate found no usable windows with the sharp shot's black areas left out (a night scene in
-  // the real regime) and was made again with them admitted; the black share of the overlap. The verdict is then at
+  // > 0: the kernel estimate failed with the sharp shot's black areas left out (no usable windows in a night scene of
+  // the real regime, or the kernel at its size limit) and was made again with them admitted; the black share of the
+  // overlap. The verdict is then at
   // most weak (an edge into black loses its dark side: measured on night pairs, docs/RESULTS.md#sharp-black-admitted).
   double kernel_sharp_black_admitted = 0;
   bool ratio_fixed_by_small_blur = false;  // r held at EXIF/--ratio (fix_ratio_when_blur_is_small)
