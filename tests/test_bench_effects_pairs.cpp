@@ -60,7 +60,7 @@ TEST(BenchEffectsPairsOut, WrittenPairCalibratesBackToTheBenchesResult) {
 // Attribution in the real regime (r ≈ 6, JPEG, handheld, a camera's sensor noise): a blur that varies across the frame
 // (the held-out form, a rotation) leaves a single kernel's misfit that a free r partly absorbs. The bench's seed 2
 // named it "exposure_ratio_mismatch + spatially_varying_blur" before; EXIF's r is right there, so only the blur is
-// named, and the ratio's entry says which effect explains it.
+// named.
 TEST(BenchEffectsAttribution, VaryingBlurAtRatio6IsNotAlsoNamedARatioMismatch) {
   test::TempDir root;
   const fs::path json = root / "cases.json";

@@ -663,9 +663,6 @@ TEST(CalibrateRealPairs, EffectSearchNamesNoExposureRatioOutsideTheFittersRange)
   EXPECT_TRUE(runaway_seen) << "pair 3's search no longer runs away: this test then checks only named ratios";
 }
 
-// The effect table a user reads on the phone pairs: the noise contrast is a variance ratio the bins' σ can carry (it
-// was extrapolated to 4.9e13 on pair 2's dark sharp shot), and a runaway vignetting or colour mix says so instead of
-// printing a corner gain of 30 or a mix of "inf" as if measured.
 // vivo X6S pair 1 (a 0.84 px blur): r is held at EXIF (3.125) by the small-blur rule, since the blur cannot separate
 // φ^γ, r^γ from φ, r. The effect diagnostics' free r meets the same ambiguity (1.85 here, while the shots' brightness
 // gives 3.7): it must not be named a mismatch, and its entry says why.
@@ -682,6 +679,9 @@ TEST(CalibrateRealPairs, RatioHeldForASmallBlurIsNotNamedAMismatch) {
   EXPECT_EQ(std::count(named.begin(), named.end(), "exposure_ratio_mismatch"), 0);
 }
 
+// The effect table a user reads on the phone pairs: the noise contrast is a variance ratio the bins' σ can carry (it
+// was extrapolated to 4.9e13 on pair 2's dark sharp shot), and a runaway vignetting or colour mix says so instead of
+// printing a corner gain of 30 or a mix of "inf" as if measured.
 TEST(CalibrateRealPairs, EffectTableNumbersAreMeasuredOrMarkedAsRunaways) {
   const fs::path dir = test::sharedData() / "pairs" / "vivo_x6s";
   if (test::sharedData().empty() || !fs::exists(dir)) GTEST_SKIP() << "../shared/data absent";
