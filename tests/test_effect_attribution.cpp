@@ -72,6 +72,33 @@ TEST(EffectAttribution, OffsetInOneShotIsNamedAsAnOffsetNotAsARatioMismatch) {
   EXPECT_EQ(report.find("black_level_offset")->runner_up, "exposure_ratio_mismatch") << report.summary();
 }
 
+// With r held at EXIF because the blur is too small to fix it (the pipeline's small-blur rule), a free r that leaves
+// EXIF is the φ^γ, r^γ ambiguity, not evidence: the same planted mismatch that is named with r free is not named with
+// the hold, and its entry says why (bundled data: the vivo pair behind the rule is checked in test_calibrate_cli.cpp).
+TEST(EffectAttribution, RatioHeldForASmallBlurIsNotNamedAMismatch) {
+  PlantingOptions po;
+  po.effect = "exposure_ratio_mismatch";
+  po.strength = 2 * plantingThreshold("exposure_ratio_mismatch");
+  po.seed = 1;
+  const ResponseModel truth = TableModel{io::readCurveTable(samples() / "camera_curves" / "SonyDSLR-A100.csv")};
+  const cv::Mat K = levinKernel(4);
+  const PlantedPair pair = plantEffect(photoPair(1, 3), truth, K, po);
+  CrfFitOptions fo;
+  fo.nominal_ratio = pair.exif_ratio;
+  EffectInputs in = test::greenEffectInputs(pair.sharp, pair.blurred, K, fo);
+  const auto named = [](const EffectReport& report) {
+    const auto detected = report.detected();
+    return std::find(detected.begin(), detected.end(), "exposure_ratio_mismatch") != detected.end();
+  };
+  const EffectReport free_ratio = diagnoseEffects(in);
+  ASSERT_TRUE(named(free_ratio)) << free_ratio.summary();
+  in.ratio_held_for_small_blur = true;
+  const EffectReport held = diagnoseEffects(in);
+  EXPECT_FALSE(named(held)) << held.summary();
+  EXPECT_NE(held.find("exposure_ratio_mismatch")->detail.find("blur is too small"), std::string::npos)
+      << held.summary();
+}
+
 // A named effect carries its evidence against the runner-up: the competing explanation with the smallest held-out
 // error, and the held-out drop from the runner-up's model to the named one's (which, chosen by the smaller held-out
 // error, is not negative).
