@@ -18,6 +18,7 @@
 #include "bench_command.hpp"
 #include "option_checks.hpp"
 #include "crfcal/curve_band.hpp"
+#include "crfcal/io/curve_prior_io.hpp"
 #include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/handheld_simulation.hpp"
@@ -49,6 +50,9 @@ struct JointBenchArgs {
   double contrast = 0.35;
   std::string joint_ratio = "pair";  // the r each pair holds in the joint fit: pair (its single-pair r) or exif
   bool band_fixed_ratio = false;     // the joint band's replicates hold r (no draws from its uncertainty)
+  // The joint band above the data (CurveBandOptions::above_data_prior): "learned" (the prior learned from the bundled
+  // camera curves without the case's camera, as `calibrate` uses it with all of them) or "bounds" (exponent bounds).
+  std::string band_above = "learned";
   std::string output;
   bool force = false;
 };
@@ -120,6 +124,8 @@ class JointRun {
     options.ratio_source = args.joint_ratio == "exif" ? JointCalibrationOptions::RatioSource::nominal
                                                       : JointCalibrationOptions::RatioSource::pair_fit;
     options.band_varies_ratio = !args.band_fixed_ratio;
+    // leave one camera out: the truth's camera is not among the prior's training curves
+    if (args.band_above == "learned") options.band.above_data_prior = io::learnPriorFromCameraCurves({name});
     const JointCalibrationResult joint = calibrateJointly(results, options);
     const auto union_range = joint.covered_range.at("G");
     const Scores j = score(joint.fits.at("G").inverse_crf, truth, union_range, union_range);
@@ -301,6 +307,11 @@ const BenchRegistration registration(
       command.add_option("--band-replicates", args->band_replicates, "Half-sample refits of the joint band (even; 0: none)")
           ->capture_default_str()
           ->check(bandReplicates());
+      command.add_option("--band-above", args->band_above,
+                         "The joint band above the covered range: the quantiles of the prior learned from the bundled "
+                         "camera curves without the truth's camera (learned) or the exponent bounds (bounds)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"bounds", "learned"}));
       command.add_option("-o,--output", args->output, "Output directory")->required();
       command.add_flag("--force", args->force, kForceHelp);
       return [args] { return runJointBench(*args); };

@@ -90,6 +90,9 @@ struct PairsArgs {
   // The band's offset term at r = 1 (CurveBandOptions::include_offset_term): "on" or "off".
   std::string band_offset_term = PairCalibrationOptions{}.band.include_offset_term ? "on" : "off";
   // σ of the ratio term (CurveBandOptions::ratio_term_sigma): "birge" or "disagreement".
+  // The band above the data (CurveBandOptions::above_data_prior): "learned" (the learned prior's quantiles, as
+  // `calibrate` uses it, here leave-one-camera-out like --shoulder learned) or "bounds" (the exponent bounds).
+  std::string band_above = "learned";
   std::string band_ratio_sigma = "birge";  // or "disagreement", "disagreement-shift" (RatioTermSigma)
   bool force = false;  // write into an output directory holding other files (never deletes them)
   std::string regime = "auto";  // auto | sharp-normal | real (see the top of this file); auto = real for r > 2
@@ -362,6 +365,7 @@ struct PairsRun {
     PairCalibrationOptions options = calibrationOptions(args, loaded);
     // leave one camera out: the case's camera (its curve table's name) is not among the prior's training curves
     if (args.shoulder == "learned") options.fit.learned_prior = io::learnPriorFromCameraCurves({shortName(c.crf)});
+    if (args.band_above == "learned") options.band.above_data_prior = io::learnPriorFromCameraCurves({shortName(c.crf)});
     if (args.noise_oracle && realRegime(args, c.ratio))  // the sharp shot's true noise per level (an oracle)
       options.fit.noise_sigma_per_level = intensityNoisePerLevel(
           realExposure(*noise_camera, args.blurred_iso, c.ratio, args.sharp_noise_scale).noise_sharp.green, c.truth);
@@ -709,6 +713,11 @@ const BenchRegistration registration(
                          "of r alone)")
           ->capture_default_str()
           ->check(CLI::IsMember({"birge", "disagreement", "disagreement-shift"}));
+      command.add_option("--band-above", args->band_above,
+                         "The band above the covered range: the quantiles of the prior learned from the bundled camera "
+                         "curves without the case's camera (learned) or the exponent bounds (bounds)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"bounds", "learned"}));
       command.add_option("--band-offset-term", args->band_offset_term,
                          "The band's offset term at r = 1: the offset a + b*phi that Eq. 4 leaves free there, bounded "
                          "by phi at the bottom of the covered range (on) or none (off)")

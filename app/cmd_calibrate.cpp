@@ -59,6 +59,7 @@ struct CalibrateArgs {
   double irradiance_kernel_lambda = PairCalibrationOptions{}.irradiance_kernel_lambda;
   bool unweighted_irradiance_kernel = false;
   std::string shoulder = PairCalibrationOptions{}.fit.experimental.shoulder_follows_emor_mean ? "mean-camera" : "rising-free";
+  std::string band_above = "learned";  // the band above the data: the learned prior's quantiles or exponent bounds
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;  // σ of log r around EXIF/--ratio
   double censored_weight = PairCalibrationOptions{}.fit.censored_weight;  // B's clipped pixels, censored
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.experimental.noise);
@@ -223,6 +224,7 @@ PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nomi
   options.weight_irradiance_kernel = !args.unweighted_irradiance_kernel;
   options.fit.experimental.shoulder_follows_emor_mean = args.shoulder == "mean-camera";
   if (args.shoulder == "learned") options.fit.learned_prior = io::learnPriorFromCameraCurves();
+  if (args.band_above == "learned") options.band.above_data_prior = io::learnPriorFromCameraCurves();
   options.fit.ratio_prior_sigma = args.ratio_prior;
   options.fit.censored_weight = args.censored_weight;
   options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
@@ -461,6 +463,7 @@ int runCalibrateJoint(const CalibrateArgs& args) {
   JointCalibrationOptions joint_options;
   joint_options.model = calibrationOptions(args, 1.0).fit;
   joint_options.band.replicates = args.band_replicates;
+  joint_options.band.above_data_prior = calibrationOptions(args, 1.0).band.above_data_prior;
   const JointCalibrationResult joint = calibrateJointly(results, joint_options);
   progress.done();
 
@@ -561,6 +564,12 @@ const CommandRegistration registration(
                          "prior learned from the measured camera curves in samples/camera_curves)")
           ->capture_default_str()
           ->check(CLI::IsMember({"rising-free", "mean-camera", "learned"}));
+      command.add_option("--band-above", args->band_above,
+                         "The band above the covered range: the 90 % spread of the prior learned from the measured "
+                         "camera curves in samples/camera_curves, given the curve's shape on the data (learned), or "
+                         "bounds on phi's local exponent there (bounds)")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"bounds", "learned"}));
       command.add_option("--irradiance-kernel-lambda", args->irradiance_kernel_lambda,
                          "Sparsity weight of the irradiance-domain kernel rounds (the first estimate keeps 0.03)")
           ->capture_default_str()

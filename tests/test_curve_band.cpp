@@ -331,6 +331,39 @@ TEST(CurveBand, CalibrateReportHasTheBand) {
     EXPECT_LE(g["lower"][i].get<double>(), report["inverse_crf"]["G"][i].get<double>() + 1e-12);
     EXPECT_GE(g["upper"][i].get<double>(), report["inverse_crf"]["G"][i].get<double>() - 1e-12);
   }
+  // Above the data the band is the learned prior's (the ten bundled camera curves) unless --band-above bounds.
+  EXPECT_EQ(g["above_data"]["kind"], "learned_prior");
+  EXPECT_EQ(g["above_data"]["training_curves"], 10);
+}
+
+TEST(CurveBand, CalibrateBandAboveBoundsKeepsTheExponentBoundsAndIsWiderAboveTheData) {
+  const fs::path pair = test::samples() / "pairs";
+  test::TempDir dir;
+  nlohmann::json bands[2];
+  const char* kinds[] = {"learned", "bounds"};
+  for (int k = 0; k < 2; ++k) {
+    const fs::path out = dir / kinds[k];
+    const auto r = test::run(test::crfcalBinary().string() + " calibrate -q " + (pair / "sharp.jpg").string() + " " +
+                             (pair / "blurred.jpg").string() + " --channels g --rounds 0 --no-effects "
+                             "--band-replicates 2 --band-above " + kinds[k] + " --kernel " +
+                             (test::samples() / "levin09" / "kernel03.txt").string() + " -o " + out.string());
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    std::ifstream in(out / "report.json");
+    bands[k] = nlohmann::json::parse(in)["inverse_crf_band"]["G"];
+  }
+  EXPECT_EQ(bands[1]["above_data"]["kind"], "exponent_bounds");
+  ASSERT_EQ(bands[1]["above_data"]["exponent"].size(), 2u);
+  // Above the covered range the bounds (x^g_hi .. x^g_lo) are wider on average than the prior's 90 % spread.
+  const double top = bands[0]["covered"][1].get<double>();
+  double width[2] = {0, 0};
+  int samples = 0;
+  for (int i = 0; i < 1024; ++i) {
+    if (i / 1023.0 <= top) continue;
+    ++samples;
+    for (int k = 0; k < 2; ++k) width[k] += bands[k]["upper"][i].get<double>() - bands[k]["lower"][i].get<double>();
+  }
+  ASSERT_GT(samples, 10) << "the bundled pair's data reach x = " << top;
+  EXPECT_LT(width[0], width[1]);
 }
 
 }  // namespace

@@ -13,6 +13,7 @@
 #include "crfcal/io/response_io.hpp"
 #include "crfcal/learned_curve_prior.hpp"
 #include "crfcal/crf_fitter.hpp"
+#include "crfcal/curve_band.hpp"
 #include "crfcal/simulation.hpp"
 #include "test_support.hpp"
 
@@ -169,6 +170,59 @@ TEST(LearnedCurvePrior, ConditioningOnTheWholeRangeLeavesNothingUnobserved) {
   // conditioning shrinks the variance of every unobserved exponent
   for (std::size_t i = 0; i < c.unobserved.size(); ++i)
     EXPECT_LE(c.covariance(i, i), prior.covariance(c.unobserved[i], c.unobserved[i]) + 1e-12);
+}
+
+// The prior's continuation as a band (continuationQuantiles through bandFromReplicates with
+// CurveBandOptions::above_data_prior): each camera's own curve, scaled by an unknown factor and cut at x_hi, against
+// the 90 % band of the prior learned without it. Pooled over the ten cameras and three cuts the truth above the cut
+// lies inside at 75–100 % of the samples (a prior from nine curves cannot promise 90 % for every camera), and the
+// scale range holds the true factor in most cases. The exponent bounds' band (the default) is printed beside it.
+TEST(LearnedCurvePrior, ContinuationQuantilesHoldHeldOutCamerasAboveTheirCut) {
+  const auto curves = cameraCurves();
+  int inside = 0, samples = 0, bound_inside = 0, scale_hits = 0, cases = 0;
+  for (const double x_hi : {0.75, 0.85, 0.9}) {
+    for (std::size_t held = 0; held < curves.size(); ++held) {
+      std::vector<std::vector<double>> training;
+      for (std::size_t i = 0; i < curves.size(); ++i)
+        if (i != held) training.push_back(curves[i].phi);
+      const auto& truth = curves[held].phi;
+      const double factor = 1.15;  // the fit's scale is not the truth's: φ → bφ leaves Eq. 4 unchanged
+      std::vector<double> fit(truth.size());
+      for (std::size_t i = 0; i < truth.size(); ++i) fit[i] = std::min(factor * truth[i], 1.0);
+      fit.back() = 1.0;
+      CurveBandOptions options;
+      const CurveBand bounds = bandFromReplicates(fit, {}, {0.02, x_hi}, options);
+      options.above_data_prior = std::make_shared<const LearnedCurvePrior>(learnCurvePrior(training));
+      const CurveBand learned = bandFromReplicates(fit, {}, {0.02, x_hi}, options);
+      ASSERT_EQ(learned.above_data, CurveBand::AboveData::learned_prior);
+      EXPECT_EQ(learned.above_data_curves, 9);
+      ASSERT_EQ(bounds.above_data, CurveBand::AboveData::exponent_bounds);
+      scale_hits += learned.scale_range.first <= 1 / factor && 1 / factor <= learned.scale_range.second;
+      ++cases;
+      for (std::size_t i = 0; i < truth.size(); ++i) {
+        const double x = double(i) / (truth.size() - 1);
+        EXPECT_LE(learned.lower[i], learned.upper[i] + 1e-12) << curves[held].name << " x " << x;
+        if (x <= x_hi || i + 1 == truth.size()) continue;
+        ++samples;
+        inside += truth[i] >= learned.lower[i] - 1e-9 && truth[i] <= learned.upper[i] + 1e-9;
+        bound_inside += truth[i] >= bounds.lower[i] - 1e-9 && truth[i] <= bounds.upper[i] + 1e-9;
+      }
+    }
+  }
+  std::printf("above the cut: inside the learned 90 %% band %.1f %% of %d samples, inside the exponent bounds "
+              "%.1f %%; the learned scale range holds the true factor in %d of %d cases\n",
+              100.0 * inside / samples, samples, 100.0 * bound_inside / samples, scale_hits, cases);
+  EXPECT_GE(inside, 0.75 * samples);
+  EXPECT_GE(scale_hits, cases / 2);
+}
+
+TEST(LearnedCurvePrior, ContinuationQuantilesRefuseACoveredRangeWithoutANode) {
+  const auto curves = cameraCurves();
+  std::vector<std::vector<double>> training;
+  for (const auto& c : curves) training.push_back(c.phi);
+  const LearnedCurvePrior prior = learnCurvePrior(training);
+  EXPECT_THROW(continuationQuantiles(prior, curves[0].phi, {0.001, 0.01}, 0.9), InvalidInput);
+  EXPECT_THROW(continuationQuantiles(prior, curves[0].phi, {0.1, 0.8}, 1.5), InvalidInput);
 }
 
 TEST(LearnedCurvePrior, RefusesTooFewOrInvalidCurves) {

@@ -103,6 +103,9 @@ void CurveBandOptions::check() const {
     throw InvalidInput("band: need 0 < exponent_floor <= exponent_ceiling");
   if (!(exponent_rise_factor >= 1)) throw InvalidInput("band: exponent_rise_factor must be >= 1");
   if (!(offset_term_max_log_ratio >= 0)) throw InvalidInput("band: offset_term_max_log_ratio must be >= 0");
+  if (above_data_prior && above_data_prior->empty()) throw InvalidInput("band: above_data_prior has no training curves");
+  if (above_data_draws < 2 || above_data_draws > 100000)
+    throw InvalidInput("band: above_data_draws must be in 2..100000");
 }
 
 std::string CurveBand::summary() const {
@@ -112,12 +115,17 @@ std::string CurveBand::summary() const {
   std::vector<double> widths;
   for (int i = i0; i <= i1; ++i) widths.push_back(upper[i] - lower[i]);
   std::nth_element(widths.begin(), widths.begin() + widths.size() / 2, widths.end());
-  char buffer[300];
+  char above[120];
+  if (above_data == AboveData::learned_prior)
+    std::snprintf(above, sizeof above, "above the data the learned prior of %d curves", above_data_curves);
+  else
+    std::snprintf(above, sizeof above, "exponent above the data %.2f-%.2f", exponent_above.first, exponent_above.second);
+  char buffer[360];
   std::snprintf(buffer, sizeof buffer,
                 "%.0f %% band from %d half-sample refits (%d failed): median width %.4f over the covered range "
-                "%.2f-%.2f, scale factor %.3f-%.3f, exponent above the data %.2f-%.2f",
+                "%.2f-%.2f, scale factor %.3f-%.3f, %s",
                 100 * level, replicates, failed_replicates, widths[widths.size() / 2], covered.first, covered.second,
-                scale_range.first, scale_range.second, exponent_above.first, exponent_above.second);
+                scale_range.first, scale_range.second, above);
   return buffer;
 }
 
@@ -174,6 +182,17 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
   // factor 1 always inside.
   const double top = std::max(phi[i1], 1e-9);
   double s_lo = std::min(1.0, std::pow(x_hi, g_hi) / top), s_hi = std::max(1.0, std::pow(x_hi, g_lo) / top);
+  // Or the learned prior's quantiles of the continuation (CurveBandOptions::above_data_prior).
+  std::optional<PriorContinuation> continuation;
+  if (options.above_data_prior && i1 < n - 1 && x_hi >= 1.0 / LearnedCurvePrior::kNodes &&
+      std::floor(x_hi * LearnedCurvePrior::kNodes) >= std::ceil(x_lo * LearnedCurvePrior::kNodes)) {
+    continuation = continuationQuantiles(*options.above_data_prior, phi, {x_lo, x_hi}, options.level,
+                                         options.above_data_draws, options.seed);
+    s_lo = std::min(1.0, continuation->scale_range.first);
+    s_hi = std::max(1.0, continuation->scale_range.second);
+    band.above_data = CurveBand::AboveData::learned_prior;
+    band.above_data_curves = options.above_data_prior->curves;
+  }
   if (i1 == n - 1) s_lo = s_hi = 1;  // data up to x = 1: the normalisation itself
   band.scale_range = {s_lo, s_hi};
 
@@ -185,8 +204,8 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
   }
   for (int i = i1 + 1; i < n; ++i) {  // above the data: x^g between the exponent bounds, from the band's edge
     const double x = double(i) / (n - 1);
-    band.lower[i] = std::pow(x, g_hi);  // φ(x) = exp(−∫_x^1 g/t dt) with g ≤ g_hi
-    band.upper[i] = std::max(std::pow(x, g_lo), band.upper[i1]);
+    band.lower[i] = continuation ? continuation->lower[i] : std::pow(x, g_hi);  // φ(x) = exp(−∫_x^1 g/t dt), g ≤ g_hi
+    band.upper[i] = std::max(continuation ? continuation->upper[i] : std::pow(x, g_lo), band.upper[i1]);
   }
   for (int i = 0; i < i0; ++i) {  // below the data: φ(x_lo)·(x/x_lo)^g towards φ(0) = 0
     const double r = (double(i) / (n - 1)) / x_lo;

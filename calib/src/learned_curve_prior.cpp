@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 #include <string>
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 
 #include "crfcal/error.hpp"
 
@@ -38,6 +40,41 @@ int highestNodeInside(std::pair<double, double> covered) {
   for (int j = kN; j >= 1; --j)
     if (nodeX(j) <= covered.second + 1e-12 && nodeX(j) >= covered.first - 1e-12) return j;
   return 0;
+}
+
+// log φ at the nodes 1..kN (index 0 unused): the curve's own at node `top`, the exponents g everywhere else.
+std::vector<double> logNodes(const std::vector<double>& inverse_crf, int top, const Eigen::VectorXd& g) {
+  std::vector<double> log_node(kN + 1, 0.0);
+  log_node[top] = std::log(std::max(sampleAt(inverse_crf, nodeX(top)), 1e-9));
+  for (int j = top + 1; j <= kN; ++j) log_node[j] = log_node[j - 1] + g[j - 2] * std::log(nodeX(j) / nodeX(j - 1));
+  for (int j = top - 1; j >= 1; --j) log_node[j] = log_node[j + 1] - g[j - 1] * std::log(nodeX(j + 1) / nodeX(j));
+  return log_node;
+}
+
+// The curve's exponents with the unobserved ones replaced by the conditional mean given the observed ones.
+Eigen::VectorXd conditionalMeanExponents(const ConditionalExponents& c, const std::vector<double>& inverse_crf) {
+  Eigen::VectorXd g = localExponents(inverse_crf);
+  Eigen::VectorXd g_o(c.observed.size());
+  for (std::size_t i = 0; i < c.observed.size(); ++i) g_o[i] = g[c.observed[i]];
+  const Eigen::VectorXd g_u = c.offset + c.gain * g_o;
+  for (std::size_t i = 0; i < c.unobserved.size(); ++i) g[c.unobserved[i]] = g_u[i];
+  return g;
+}
+
+// A square root of a covariance (eigenvalues clipped at 0: the conditional covariance is semi-definite up to
+// rounding).
+Eigen::MatrixXd covarianceRoot(const Eigen::MatrixXd& covariance) {
+  if (covariance.size() == 0) return covariance;
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(covariance);
+  return eigen.eigenvectors() * eigen.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+}
+
+// The q-quantile of v (sorted in place; linear between order statistics).
+double quantile(std::vector<double>& v, double q) {
+  std::sort(v.begin(), v.end());
+  const double t = q * (v.size() - 1);
+  const std::size_t i = std::min(static_cast<std::size_t>(t), v.size() - 1), k = std::min(i + 1, v.size() - 1);
+  return v[i] + (t - i) * (v[k] - v[i]);
 }
 
 }  // namespace
@@ -121,16 +158,8 @@ std::vector<double> extrapolateWithPrior(const LearnedCurvePrior& prior, const s
   const int top = highestNodeInside(covered);
   if (top == 0) throw InvalidInput("learned prior: the covered range holds no node x = j/64");
   const ConditionalExponents c = conditionOnCovered(prior, covered);
-  Eigen::VectorXd g = localExponents(inverse_crf);
-  Eigen::VectorXd g_o(c.observed.size());
-  for (std::size_t i = 0; i < c.observed.size(); ++i) g_o[i] = g[c.observed[i]];
-  const Eigen::VectorXd g_u = c.offset + c.gain * g_o;
-  for (std::size_t i = 0; i < c.unobserved.size(); ++i) g[c.unobserved[i]] = g_u[i];
-  // log φ at the nodes: the curve's own at the highest node inside, the exponents everywhere else.
-  std::vector<double> log_node(kN + 1, 0.0);
-  log_node[top] = std::log(std::max(sampleAt(inverse_crf, nodeX(top)), 1e-9));
-  for (int j = top + 1; j <= kN; ++j) log_node[j] = log_node[j - 1] + g[j - 2] * std::log(nodeX(j) / nodeX(j - 1));
-  for (int j = top - 1; j >= 1; --j) log_node[j] = log_node[j + 1] - g[j - 1] * std::log(nodeX(j + 1) / nodeX(j));
+  const Eigen::VectorXd g = conditionalMeanExponents(c, inverse_crf);
+  const std::vector<double> log_node = logNodes(inverse_crf, top, g);
   const double log_scale = -log_node[kN];  // φ(1) = 1
   int bottom = top;
   while (bottom > 1 && nodeX(bottom - 1) >= covered.first - 1e-12) --bottom;
@@ -146,6 +175,57 @@ std::vector<double> extrapolateWithPrior(const LearnedCurvePrior& prior, const s
     out[i] = std::exp(log_scale + log_node[base] + g[base - 1] * std::log(x / nodeX(base)));
   }
   out.back() = 1.0;
+  return out;
+}
+
+PriorContinuation continuationQuantiles(const LearnedCurvePrior& prior, const std::vector<double>& inverse_crf,
+                                        std::pair<double, double> covered, double level, int draws,
+                                        std::uint64_t seed) {
+  checkCurve(inverse_crf, 0);
+  if (!(level > 0 && level < 1)) throw InvalidInput("learned prior: the band's level must be in (0, 1)");
+  if (draws < 2) throw InvalidInput("learned prior: at least 2 draws");
+  const int top = highestNodeInside(covered);
+  if (top == 0) throw InvalidInput("learned prior: the covered range holds no node x = j/64");
+  const ConditionalExponents c = conditionOnCovered(prior, covered);
+  const Eigen::VectorXd mean = conditionalMeanExponents(c, inverse_crf);
+  const Eigen::MatrixXd root = covarianceRoot(c.covariance);
+  const std::size_t n = inverse_crf.size();
+  const std::size_t first_above = static_cast<std::size_t>(std::floor(nodeX(top) * (n - 1))) + 1;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal;
+  std::vector<double> scales(draws);
+  std::vector<std::vector<double>> above(n > first_above ? n - first_above : 0, std::vector<double>(draws));
+  for (int d = 0; d < draws; ++d) {
+    Eigen::VectorXd z(root.cols());
+    for (Eigen::Index k = 0; k < z.size(); ++k) z[k] = normal(rng);
+    Eigen::VectorXd g = mean;
+    const Eigen::VectorXd g_u = root * z;
+    for (std::size_t i = 0; i < c.unobserved.size(); ++i) g[c.unobserved[i]] += g_u[i];
+    const std::vector<double> log_node = logNodes(inverse_crf, top, g);
+    const double log_scale = -log_node[kN];  // φ(1) = 1
+    scales[d] = std::exp(log_scale);
+    for (std::size_t i = first_above; i < n; ++i) {
+      const double x = double(i) / (n - 1);
+      const int j = std::clamp(static_cast<int>(std::floor(x * kN)), top, kN - 1);
+      above[i - first_above][d] = std::exp(log_scale + log_node[j] + g[j - 1] * std::log(x / nodeX(j)));
+    }
+  }
+  const double q_lo = 0.5 * (1 - level), q_hi = 0.5 * (1 + level);
+  PriorContinuation out;
+  out.draws = draws;
+  out.top_node_x = nodeX(top);
+  out.scale_range = {quantile(scales, q_lo), quantile(scales, q_hi)};
+  out.lower.resize(n);
+  out.upper.resize(n);
+  for (std::size_t i = 0; i < std::min(first_above, n); ++i) {
+    out.lower[i] = out.scale_range.first * inverse_crf[i];
+    out.upper[i] = out.scale_range.second * inverse_crf[i];
+  }
+  for (std::size_t i = first_above; i < n; ++i) {
+    out.lower[i] = std::min(quantile(above[i - first_above], q_lo), 1.0);
+    out.upper[i] = std::min(quantile(above[i - first_above], q_hi), 1.0);
+  }
+  out.lower.back() = out.upper.back() = 1.0;
   return out;
 }
 

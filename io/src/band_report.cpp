@@ -15,9 +15,15 @@ nlohmann::json curveBandsJson(const std::map<std::string, CurveBand>& bands, con
                  {"replicates", band.replicates},
                  {"failed_replicates", band.failed_replicates},
                  {"scale_range", {band.scale_range.first, band.scale_range.second}},
-                 {"exponent_above", {band.exponent_above.first, band.exponent_above.second}},
                  {"covered", {band.covered.first, band.covered.second}},
                  {"method", method}};
+    // What set the band above the covered range: the exponent bounds, or the learned prior's quantiles.
+    if (band.above_data == CurveBand::AboveData::learned_prior)
+      out[name]["above_data"] = {{"kind", "learned_prior"}, {"training_curves", band.above_data_curves}};
+    else
+      out[name]["above_data"] = {{"kind", "exponent_bounds"},
+                                 {"exponent", {band.exponent_above.first, band.exponent_above.second}}};
+    out[name]["exponent_above"] = {band.exponent_above.first, band.exponent_above.second};
   }
   return out;
 }

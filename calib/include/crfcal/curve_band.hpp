@@ -18,9 +18,15 @@
 //    exponents ≥ 0.56 and shoulders that RISE towards x = 1, CrfFitOptions::min_local_exponent/shoulder_prior);
 //    g_hi = max(exponent_ceiling, exponent_rise_factor · g_top). Below the data likewise towards φ(0) = 0. This part is a bound, not a
 //    probability: it is honestly wide, and it is what makes the absolute band wide inside the covered range too
-//    when the data stop well below x = 1.
+//    when the data stop well below x = 1. Measured, the bound is too tight near x = 1 (measured shoulders steepen
+//    there beyond any g_hi a fit's top suggests) and too loose below: the truth escaped it mostly in the last few
+//    percent below x = 1. With CurveBandOptions::above_data_prior the part above the data and the scale are instead
+//    the quantiles of a prior learned from measured curves, conditioned on the fit's shape inside
+//    (learned_curve_prior.hpp): a probability under that prior, calibrated along x on held-out cameras
+//    (docs/RESULTS.md#band-above-learned). The commands pass it by default; the library's default stays the bound.
 // Pure computation: no file I/O, no printing.
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
@@ -30,6 +36,7 @@
 
 #include "crfcal/band_ratio_term.hpp"
 #include "crfcal/crf_fitter.hpp"
+#include "crfcal/learned_curve_prior.hpp"
 
 namespace crfcal {
 
@@ -90,6 +97,13 @@ struct CurveBandOptions {
   // verdict changes; no value fitted — the bound is φ at the bottom of the pair's own data).
   bool include_offset_term = true;
   double offset_term_max_log_ratio = 0.05;
+  // Beyond the top of the data: instead of the exponent bounds above (a bound, not a probability), the learned
+  // prior's conditional spread of the curve there given its shape inside (learned_curve_prior.hpp,
+  // continuationQuantiles at `level`): the band above the covered range and the scale range inside it become the
+  // draws' quantiles. Needs a node x = j/64 inside the covered range; otherwise the bounds. Null (default): the
+  // bounds. Measured on `bench pairs` leave-one-camera-out: docs/RESULTS.md#band-above-learned.
+  std::shared_ptr<const LearnedCurvePrior> above_data_prior;
+  int above_data_draws = 512;  // draws of the prior's continuation
   std::uint64_t seed = 1;  // the blocks' half-samples (deterministic)
   void check() const;      // throws InvalidInput
 };
@@ -115,6 +129,10 @@ struct CurveBand {
   std::pair<double, double> covered{0, 1};  // the covered range the band was built for
   std::pair<double, double> scale_range{1, 1};  // factors s with φ_true ≈ s·φ on the covered range
   std::pair<double, double> exponent_above{1, 1};  // [g_lo, g_hi] used above the covered range
+  // What set the band above the covered range and the scale range: the exponent bounds, or the learned prior's
+  // quantiles (CurveBandOptions::above_data_prior; then exponent_above is not used).
+  enum class AboveData { exponent_bounds, learned_prior } above_data = AboveData::exponent_bounds;
+  int above_data_curves = 0;  // training curves of that prior
   double level = 0.9;
   int replicates = 0;         // successful refits
   std::vector<double> replicate_ratios;         // r each refit was fitted at (held by a ReplicateRatioRule, or its own)

@@ -9,6 +9,7 @@
 // from training curves with shrinkage of the covariance towards its diagonal. Conditioned on the exponents inside
 // the covered range, its mean and covariance outside set the extrapolation — and so the scale of the whole curve.
 // Built from curves given as vectors (no file I/O here): a bench can pass a prior learned without the case's camera.
+#include <cstdint>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -65,5 +66,22 @@ ConditionalExponents conditionOnCovered(const LearnedCurvePrior& prior, std::pai
 // the input. What the prior alone says the curve's scale is, given its shape on the data (tests, bench tables).
 std::vector<double> extrapolateWithPrior(const LearnedCurvePrior& prior, const std::vector<double>& inverse_crf,
                                          std::pair<double, double> covered);
+
+// The prior's spread of φ beyond the data, as pointwise quantiles (issue 19: a band above the covered range that is a
+// probability, not a bound). Each draw takes the exponents outside the covered range from the conditional Gaussian
+// (conditionOnCovered, given the curve's own exponents inside), continues the curve from its highest node inside the
+// covered range with them, and scales the whole curve so that φ(1) = 1; `lower` / `upper` are the draws' pointwise
+// quantiles at (1 ∓ level) / 2, `scale_range` the same quantiles of the factor s each draw applies to the curve
+// (s·φ on the covered range). Samples at or below the highest node inside take s·φ of each draw. Deterministic
+// for a seed.
+struct PriorContinuation {
+  std::vector<double> lower, upper;              // same size as the curve; φ(1) = 1
+  std::pair<double, double> scale_range{1, 1};   // quantiles of s
+  double top_node_x = 1;                         // x of the highest node inside the covered range
+  int draws = 0;
+};
+PriorContinuation continuationQuantiles(const LearnedCurvePrior& prior, const std::vector<double>& inverse_crf,
+                                        std::pair<double, double> covered, double level, int draws = 512,
+                                        std::uint64_t seed = 1);
 
 }  // namespace crfcal
