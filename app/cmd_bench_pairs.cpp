@@ -435,6 +435,13 @@ struct PairsRun {
                                {"refitted", r.ratio_from_evidence},
                                {"not_adopted_reason", e.not_adopted_reason}};
     row["ratio_held_small_blur"] = r.ratio_fixed_by_small_blur;
+    // The fitter's candidate models of G (crf_model_selection): their r and cross-validated criterion side by side
+    // (how far r rests on the model family).
+    nlohmann::json candidates = nlohmann::json::array();
+    for (const CrfCandidate& k : r.fits.at("G").candidates)
+      candidates.push_back({{"kind", k.kind}, {"ratio_over_true", k.ratio / c.ratio}, {"criterion", k.criterion},
+                            {"energy", k.energy}, {"valid", k.valid}});
+    row["candidates_G"] = candidates;
     return s;
   }
 
