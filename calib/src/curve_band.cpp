@@ -204,8 +204,10 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
   }
   for (int i = i1 + 1; i < n; ++i) {  // above the data: x^g between the exponent bounds, from the band's edge
     const double x = double(i) / (n - 1);
-    band.lower[i] = continuation ? continuation->lower[i] : std::pow(x, g_hi);  // φ(x) = exp(−∫_x^1 g/t dt), g ≤ g_hi
-    band.upper[i] = std::max(continuation ? continuation->upper[i] : std::pow(x, g_lo), band.upper[i1]);
+    // The prior's draws continue the fit from its top, which is itself uncertain by the shape half-width there:
+    // added like inside (s·φ ± h), so that the band does not step at the top of the data.
+    band.lower[i] = continuation ? continuation->lower[i] - h[i1] : std::pow(x, g_hi);  // φ = exp(−∫_x^1 g/t dt), g ≤ g_hi
+    band.upper[i] = std::max(continuation ? continuation->upper[i] + h[i1] : std::pow(x, g_lo), band.upper[i1]);
   }
   for (int i = 0; i < i0; ++i) {  // below the data: φ(x_lo)·(x/x_lo)^g towards φ(0) = 0
     const double r = (double(i) / (n - 1)) / x_lo;
