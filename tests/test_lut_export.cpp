@@ -19,6 +19,7 @@
 #include "crfcal/error.hpp"
 #include "crfcal/io/lut_export.hpp"
 #include "crfcal/io/report.hpp"
+#include "crfcal/io/response_io.hpp"
 #include "crfcal/response_curve.hpp"
 #include "test_support.hpp"
 
@@ -253,6 +254,30 @@ TEST(LutExport, CsvRoundTrip) {
   EXPECT_EQ(rows, 1024);
   EXPECT_LT(worst, 1e-9);
   EXPECT_LT(result.rounding_error, 1e-9);
+}
+
+// The inverse csv that export writes ("x,R,G,B") is a curve table `table:` reads back, each channel by its column.
+TEST(LutExport, InverseCsvReadsBackAsACurveTablePerChannel) {
+  test::TempDir dir;
+  LutExportOptions options;
+  options.format = LutFormat::Csv;
+  options.direction = LutDirection::Inverse;
+  exportLut(rgbReport(), dir / "phi.csv", options);
+  const CalibrationReport report = rgbReport();
+  for (const std::string channel : {"R", "G", "B"}) {
+    const std::vector<double> phi = readCurveTable(dir / "phi.csv", channel);
+    ASSERT_EQ(phi.size(), report.inverse_crf.at(channel).size());
+    double worst = 0;
+    for (std::size_t i = 0; i < phi.size(); ++i) worst = std::max(worst, std::abs(phi[i] - report.inverse_crf.at(channel)[i]));
+    EXPECT_LT(worst, 1e-8) << channel;
+  }
+  // a column the header does not name is refused with the file named
+  try {
+    readCurveTable(dir / "phi.csv", "Y");
+    FAIL() << "no Y column";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("phi.csv"), std::string::npos) << e.what();
+  }
 }
 
 TEST(LutExport, OpenCvResponseLoadsWithFileStorage) {

@@ -74,12 +74,16 @@ std::vector<double> readCurveSamples(const fs::path& path, const std::string& ch
   std::istringstream lines(text);
   std::string line;
   int number = 0, columns = -1;
+  // A header naming the columns "x,R,G,B" (what `crfcal export` writes as csv) selects `channel`'s column.
+  std::vector<std::string> header;
+  int channel_column = -1;
   while (std::getline(lines, line)) {
     ++number;
     if (const auto hash = line.find('#'); hash != std::string::npos) line.erase(hash);
     std::replace(line.begin(), line.end(), ',', ' ');
     std::istringstream fields(line);
     std::vector<double> row;
+    std::vector<std::string> tokens;
     std::string token;
     bool numeric = true;
     while (fields >> token) {
@@ -87,17 +91,32 @@ std::vector<double> readCurveSamples(const fs::path& path, const std::string& ch
       const double v = std::strtod(token.c_str(), &end);
       if (end == token.c_str() || *end) numeric = false;
       row.push_back(v);
+      tokens.push_back(token);
     }
-    if (row.empty() || (!numeric && xs.empty() && ys.empty())) continue;  // blank line or a header
+    if (row.empty()) continue;  // blank line
+    if (!numeric && xs.empty() && ys.empty()) {  // a header
+      if (header.empty()) header = tokens;
+      continue;
+    }
     if (!numeric) throw Error("line " + std::to_string(number) + " is not numeric", path.string());
-    if (columns < 0) columns = static_cast<int>(row.size());
-    if (static_cast<int>(row.size()) != columns || columns > 2)
-      throw Error("line " + std::to_string(number) + ": expected 1 (phi) or 2 (x,phi) columns", path.string());
-    if (columns == 2) xs.push_back(row[0]);
-    ys.push_back(row.back());
+    if (columns < 0) {
+      columns = static_cast<int>(row.size());
+      if (columns > 2) {
+        const auto named = std::find(header.begin(), header.end(), channel);
+        if (header.size() != row.size() || header.front() != "x" || named == header.end())
+          throw Error("line " + std::to_string(number) + ": expected 1 (phi) or 2 (x,phi) columns, or a header "
+                      "x," + channel + ",… naming the channel's column", path.string());
+        channel_column = static_cast<int>(named - header.begin());
+      }
+    }
+    if (static_cast<int>(row.size()) != columns)
+      throw Error("line " + std::to_string(number) + ": " + std::to_string(row.size()) + " columns, the first row has " +
+                  std::to_string(columns), path.string());
+    if (columns >= 2) xs.push_back(row[0]);
+    ys.push_back(channel_column >= 0 ? row[static_cast<std::size_t>(channel_column)] : row.back());
   }
   if (ys.size() < 2) throw Error("a curve table needs at least 2 samples", path.string());
-  if (columns == 2) {
+  if (columns >= 2) {
     for (size_t i = 0; i < xs.size(); ++i)
       if (!std::isfinite(xs[i]) || (i > 0 && !(xs[i] > xs[i - 1])))
         throw Error("x column must be finite and increase", path.string());

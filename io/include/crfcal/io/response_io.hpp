@@ -13,8 +13,9 @@
 namespace crfcal::io {
 
 // Like crfcal::parseResponseSpec, plus "table:FILE": FILE holds φ samples at x = i/(n−1), one per line, or two
-// columns x,φ (resampled to 1024 points), or a crfcal JSON report/truth file ("inverse_crf": samples, or per
-// channel {"G": …} — the green channel, or `channel`).
+// columns x,φ (resampled to 1024 points), or columns under a header "x,R,G,B" (`crfcal export`'s csv: the green
+// column, or `channel`'s), or a crfcal JSON report/truth file ("inverse_crf": samples, or per channel {"G": …} —
+// the green channel, or `channel`).
 ResponseModel parseResponseSpec(const std::string& spec, const std::string& channel = "G");
 
 // Reads an inverse curve table (as described above) resampled to `samples` points.
