@@ -89,10 +89,10 @@ struct PairsArgs {
   std::string band_prior_term = PairCalibrationOptions{}.band.include_prior_term ? "on" : "off";
   // The band's offset term at r = 1 (CurveBandOptions::include_offset_term): "on" or "off".
   std::string band_offset_term = PairCalibrationOptions{}.band.include_offset_term ? "on" : "off";
-  // σ of the ratio term (CurveBandOptions::ratio_term_sigma): "birge" or "disagreement".
   // The band above the data (CurveBandOptions::above_data_prior): "learned" (the learned prior's quantiles, as
   // `calibrate` uses it, here leave-one-camera-out like --shoulder learned) or "bounds" (the exponent bounds).
   std::string band_above = "learned";
+  // σ of the ratio term (CurveBandOptions::ratio_term_sigma): "birge" or "disagreement".
   std::string band_ratio_sigma = "birge";  // or "disagreement", "disagreement-shift" (RatioTermSigma)
   bool force = false;  // write into an output directory holding other files (never deletes them)
   std::string regime = "auto";  // auto | sharp-normal | real (see the top of this file); auto = real for r > 2

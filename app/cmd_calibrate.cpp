@@ -461,9 +461,10 @@ int runCalibrateJoint(const CalibrateArgs& args) {
   }
   progress.stage("joint fit");
   JointCalibrationOptions joint_options;
-  joint_options.model = calibrationOptions(args, 1.0).fit;
+  const PairCalibrationOptions pair_defaults = calibrationOptions(args, 1.0);
+  joint_options.model = pair_defaults.fit;
   joint_options.band.replicates = args.band_replicates;
-  joint_options.band.above_data_prior = calibrationOptions(args, 1.0).band.above_data_prior;
+  joint_options.band.above_data_prior = pair_defaults.band.above_data_prior;
   const JointCalibrationResult joint = calibrateJointly(results, joint_options);
   progress.done();
 

@@ -202,7 +202,7 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
     band.lower[i] = s_lo * phi[i] - h[i];
     band.upper[i] = s_hi * phi[i] + h[i];
   }
-  for (int i = i1 + 1; i < n; ++i) {  // above the data: x^g between the exponent bounds, from the band's edge
+  for (int i = i1 + 1; i < n; ++i) {  // above the data: the prior's quantiles, or x^g between the exponent bounds
     const double x = double(i) / (n - 1);
     // The prior's draws continue the fit from its top, which is itself uncertain by the shape half-width there:
     // added like inside (s·φ ± h), so that the band does not step at the top of the data.

@@ -23,7 +23,6 @@ nlohmann::json curveBandsJson(const std::map<std::string, CurveBand>& bands, con
     else
       out[name]["above_data"] = {{"kind", "exponent_bounds"},
                                  {"exponent", {band.exponent_above.first, band.exponent_above.second}}};
-    out[name]["exponent_above"] = {band.exponent_above.first, band.exponent_above.second};
   }
   return out;
 }

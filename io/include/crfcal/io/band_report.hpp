@@ -3,7 +3,9 @@
 // report (compare, export) find it in one place:
 //   "inverse_crf_band": {"G": {"lower": [1024], "upper": [1024], "shape_half_width": [1024], "level": 0.9,
 //                              "replicates": n, "failed_replicates": n, "scale_range": [s_lo, s_hi],
-//                              "exponent_above": [g_lo, g_hi], "covered": [x_lo, x_hi], "method": "..."}, …}
+//                              "covered": [x_lo, x_hi], "method": "...",
+//                              "above_data": {"kind": "learned_prior", "training_curves": n} or
+//                                            {"kind": "exponent_bounds", "exponent": [g_lo, g_hi]}}, …}
 // The covered range itself is report.json's "covered_range" (report.hpp); "covered" repeats the range the band
 // was built on. Reports without a band (older ones, chart, simulate's truth) read as none; bracket reports have one
 // (scaled_fit_band.hpp).
