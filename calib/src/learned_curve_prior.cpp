@@ -69,9 +69,8 @@ Eigen::MatrixXd covarianceRoot(const Eigen::MatrixXd& covariance) {
   return eigen.eigenvectors() * eigen.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal();
 }
 
-// The q-quantile of v (sorted in place; linear between order statistics).
-double quantile(std::vector<double>& v, double q) {
-  std::sort(v.begin(), v.end());
+// The q-quantile of sorted values v (linear between order statistics).
+double sortedQuantile(const std::vector<double>& v, double q) {
   const double t = q * (v.size() - 1);
   const std::size_t i = std::min(static_cast<std::size_t>(t), v.size() - 1), k = std::min(i + 1, v.size() - 1);
   return v[i] + (t - i) * (v[k] - v[i]);
@@ -214,7 +213,8 @@ PriorContinuation continuationQuantiles(const LearnedCurvePrior& prior, const st
   PriorContinuation out;
   out.draws = draws;
   out.top_node_x = nodeX(top);
-  out.scale_range = {quantile(scales, q_lo), quantile(scales, q_hi)};
+  std::sort(scales.begin(), scales.end());
+  out.scale_range = {sortedQuantile(scales, q_lo), sortedQuantile(scales, q_hi)};
   out.lower.resize(n);
   out.upper.resize(n);
   for (std::size_t i = 0; i < std::min(first_above, n); ++i) {
@@ -222,8 +222,10 @@ PriorContinuation continuationQuantiles(const LearnedCurvePrior& prior, const st
     out.upper[i] = out.scale_range.second * inverse_crf[i];
   }
   for (std::size_t i = first_above; i < n; ++i) {
-    out.lower[i] = std::min(quantile(above[i - first_above], q_lo), 1.0);
-    out.upper[i] = std::min(quantile(above[i - first_above], q_hi), 1.0);
+    std::vector<double>& values = above[i - first_above];
+    std::sort(values.begin(), values.end());
+    out.lower[i] = std::min(sortedQuantile(values, q_lo), 1.0);
+    out.upper[i] = std::min(sortedQuantile(values, q_hi), 1.0);
   }
   out.lower.back() = out.upper.back() = 1.0;
   return out;
