@@ -67,6 +67,8 @@ struct PairsArgs {
   std::string channels = "g";
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;
   double censored_weight = PairCalibrationOptions{}.fit.censored_weight;  // B's clipped pixels, censored
+  std::string model = "auto";                                   // as calibrate --model
+  int emor_terms = PairCalibrationOptions{}.fit.emor_terms;     // as calibrate --emor-terms
   std::string noise_handling = toString(PairCalibrationOptions{}.fit.experimental.noise);
   bool fix_ratio = false;
   bool always_fit_ratio = false;
@@ -201,9 +203,15 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.kernel.kernel_size = args.kernel_size;
   options.rgb = args.channels == "rgb";
   options.fit.nominal_ratio = loaded.exif_ratio->ratio();
-  if (args.chroma_model == "auto") options.sharp_chroma = {loaded.sharp.chroma_block_h, loaded.sharp.chroma_block_v};
+  // As calibrate: the sharp shot's stored chroma sampling (its R and B verdicts), modelled only when asked.
+  options.sharp_stored_chroma = {loaded.sharp.chroma_block_h, loaded.sharp.chroma_block_v};
+  if (args.chroma_model == "auto") options.sharp_chroma = options.sharp_stored_chroma;
   options.fit.ratio_prior_sigma = args.ratio_prior;
   options.fit.censored_weight = args.censored_weight;
+  options.fit.model = args.model == "ggcm" ? CrfModelChoice::ggcm
+                      : args.model == "emor" ? CrfModelChoice::emor
+                                             : CrfModelChoice::automatic;
+  options.fit.emor_terms = args.emor_terms;
   options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
   options.fit.fit_ratio = !args.fix_ratio;
   options.fix_ratio_when_blur_is_small = !args.always_fit_ratio;
@@ -238,6 +246,7 @@ void writeKernels(const fs::path& dir, const cv::Mat& estimated, const cv::Mat& 
 struct CaseScores {
   double seconds = 0, rmse = 0, base = 0, rr = 0, kerr = 0, cerr = 0;
   double rmse_r = -1, rmse_b = -1;  // --channels rgb: φ_R, φ_B RMSE against the (common) truth
+  double shape_r = -1, shape_b = -1;  // --channels rgb: their shape RMSE over their own covered ranges
   ChannelComparison shape;
   std::optional<BandScore> band;  // the G band against the truth (when a band was estimated)
   double band_seconds = 0;
@@ -282,7 +291,7 @@ struct PairsRun {
   bool rgb = false;
   int index = 0, done = 0;
   VerdictCounts verdicts;
-  double sum_rmse_r = 0, sum_rmse_b = 0;
+  double sum_rmse_r = 0, sum_rmse_b = 0, sum_shape_r = 0, sum_shape_g = 0, sum_shape_b = 0;
   double sum_rmse = 0, sum_base = 0, sum_r = 0, sum_k = 0, worst_r = 0, worst_rmse = 0;
 
   PairsRun(const PairsArgs& a, io::OutputDirectory& o, const std::optional<io::CameraNoiseProfile>& camera,
@@ -377,6 +386,20 @@ struct PairsRun {
       s.rmse_r = curveRmse(r.fits.at("R").inverse_crf, sampleInverse(c.truth));
       s.rmse_b = curveRmse(r.fits.at("B").inverse_crf, sampleInverse(c.truth));
       row.update({{"phi_rmse_R", s.rmse_r}, {"phi_rmse_B", s.rmse_b}});
+      // Shape over each channel's own covered range after its best common scale, as for G below.
+      for (const char* name : {"R", "B"}) {
+        std::optional<IntensityRange> covered;
+        if (r.covered_range.count(name)) covered = r.covered_range.at(name);
+        const ChannelComparison shape = compareCurves(sampleInverse(c.truth), r.fits.at(name).inverse_crf, {}, covered);
+        (name[0] == 'R' ? s.shape_r : s.shape_b) = shape.rmse_covered_aligned;
+        const std::string channel = name;
+        row.update({{"phi_shape_rmse_" + channel + "_covered", shape.rmse_covered_aligned},
+                    {"phi_scale_" + channel + "_covered", shape.scale_covered},
+                    {"covered_" + channel, {shape.covered.first, shape.covered.second}}});
+        if (r.verdicts.count(name))
+          row.update({{"verdict_" + channel, toString(r.verdicts.at(name).level)},
+                      {"verdict_reasons_" + channel, r.verdicts.at(name).reasons}});
+      }
     }
     s.rr = r.fits.at("G").ratio / c.ratio;
     // φ before a detected effect's extended model replaced it (effects.hpp), for comparison.
@@ -496,6 +519,9 @@ struct PairsRun {
     sum_rmse += s.rmse;
     sum_rmse_r += std::max(0.0, s.rmse_r);
     sum_rmse_b += std::max(0.0, s.rmse_b);
+    sum_shape_r += std::max(0.0, s.shape_r);
+    sum_shape_g += s.shape.rmse_covered_aligned;
+    sum_shape_b += std::max(0.0, s.shape_b);
     sum_base += s.base;
     sum_r += r_error;
     sum_k += s.kerr;
@@ -552,6 +578,12 @@ struct PairsRun {
         std::snprintf(line, sizeof line, "mean phi RMSE R / G / B %.4f / %.4f / %.4f (R/G %.2fx, B/G %.2fx)\n",
                       sum_rmse_r / done, sum_rmse / done, sum_rmse_b / done, sum_rmse_r / std::max(sum_rmse, 1e-12),
                       sum_rmse_b / std::max(sum_rmse, 1e-12));
+        table << line;
+        std::snprintf(line, sizeof line,
+                      "mean shape RMSE over each channel's covered range (best common scale) R / G / B "
+                      "%.4f / %.4f / %.4f (R/G %.2fx, B/G %.2fx)\n",
+                      sum_shape_r / done, sum_shape_g / done, sum_shape_b / done,
+                      sum_shape_r / std::max(sum_shape_g, 1e-12), sum_shape_b / std::max(sum_shape_g, 1e-12));
         table << line;
       }
     }
@@ -673,6 +705,12 @@ const BenchRegistration registration(
                          "clips, r (phi(I) (x) K) >= phi(1); 1: as data, 0: excluded as in the seed)")
           ->capture_default_str()
           ->check(CLI::NonNegativeNumber);
+      command.add_option("--model", args->model, "Model of phi, as calibrate --model: ggcm, emor or auto")
+          ->capture_default_str()
+          ->check(CLI::IsMember({"ggcm", "emor", "auto"}));
+      command.add_option("--emor-terms", args->emor_terms, "EMoR basis curves of the fit, as calibrate --emor-terms")
+          ->capture_default_str()
+          ->check(CLI::Range(1, 25));
       command.add_option("--irradiance-kernel-lambda", args->irradiance_kernel_lambda,
                          "Sparsity weight of the irradiance-domain kernel rounds, as calibrate")
           ->capture_default_str()

@@ -42,6 +42,7 @@ struct CalibrateArgs {
   // worse than the pointwise model at r = 4 and on one 4:2:2 scene, docs/RESULTS.md#chroma-choice)
   std::string chroma_model = "off";
   std::string model = "auto";
+  int emor_terms = PairCalibrationOptions{}.fit.emor_terms;  // EMoR basis curves of the fit
   double ratio = 0;  // 0: from EXIF
   int kernel_size = 35;
   std::string kernel_file;
@@ -231,6 +232,7 @@ PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nomi
   options.fit.model = args.model == "ggcm" ? CrfModelChoice::ggcm
                       : args.model == "emor" ? CrfModelChoice::emor
                                              : CrfModelChoice::automatic;
+  options.fit.emor_terms = args.emor_terms;
   options.fit.threads = args.threads;
   if (!args.kernel_file.empty()) options.given_kernel = io::readKernel(args.kernel_file);
   return options;
@@ -532,6 +534,10 @@ const CommandRegistration registration(
           ->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--model", args->model, "Model of phi: ggcm (Eq. 19), emor (PCA), auto (cross-validated)")
           ->check(CLI::IsMember({"ggcm", "emor", "auto"}));
+      command.add_option("--emor-terms", args->emor_terms,
+                         "EMoR basis curves of the emor model (Grossberg & Nayar: 3-5 reach DoRF accuracy)")
+          ->capture_default_str()
+          ->check(CLI::Range(1, 25));
       command.add_option("--ratio", args->ratio,
                          "Exposure ratio r = dt_B/dt_I, 1/1000 .. 1000 (default 0: from EXIF, footnote 4)")
           ->check(exposureRatioOption());
