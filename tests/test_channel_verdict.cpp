@@ -133,6 +133,36 @@ TEST(ChannelVerdict, ColourChannelFromSubsampledSharpChromaIsWeak) {
   EXPECT_TRUE(mentions(v, "4:2:0")) << v.summary();
 }
 
+// The chroma check (docs/RESULTS.md#chroma-now): a pointwise B whose fit where the sharp shot's chroma is flat has the
+// same shape was not biased by the subsampling; one that differs by more than the shape target was.
+TEST(ChannelVerdict, SubsampledChromaIsWeakOnlyWhenTheFlatChromaFitDiffersInShape) {
+  ChannelEvidence e = clean("B");
+  e.pointwise_from_subsampled_chroma = "4:2:0";
+  e.chroma_check_shape_difference = 0.004;
+  e.chroma_check_pixels_left_out = 500;
+  const ChannelVerdict agreeing = judgeOne(e);
+  EXPECT_EQ(agreeing.level, VerdictLevel::ok) << agreeing.summary();
+  EXPECT_TRUE(mentions(agreeing, "same shape (RMSE 0.0040")) << agreeing.summary();
+  e.chroma_check_shape_difference = 0.03;
+  const ChannelVerdict differing = judgeOne(e);
+  EXPECT_EQ(differing.level, VerdictLevel::weak) << differing.summary();
+  EXPECT_TRUE(mentions(differing, "without the 500 pixels")) << differing.summary();
+  EXPECT_TRUE(mentions(differing, "differs in shape by 0.0300")) << differing.summary();
+  e.chroma_check_shape_difference = 0;  // nothing left out: the same fit
+  e.chroma_check_pixels_left_out = 0;
+  const ChannelVerdict nothing = judgeOne(e);
+  EXPECT_EQ(nothing.level, VerdictLevel::ok) << nothing.summary();
+  EXPECT_TRUE(mentions(nothing, "nothing for the pointwise model to miss")) << nothing.summary();
+  e.chroma_check_shape_difference = -1;  // the check's fit failed: not measured, the sampling alone decides
+  EXPECT_EQ(judgeOne(e).level, VerdictLevel::weak);
+  VerdictOptions loose;
+  loose.max_chroma_shape_difference = 0.05;
+  e.chroma_check_shape_difference = 0.03;
+  EXPECT_EQ(judgeChannels({e}, {}, loose).at("B").level, VerdictLevel::ok);
+  loose.max_chroma_shape_difference = 0;
+  EXPECT_THROW(loose.check(), InvalidInput);
+}
+
 TEST(ChannelVerdict, FlatCurveOverPartOfTheCoveredRangeIsUnreliable) {
   ChannelEvidence e = clean();
   // φ = 0 up to x = 0.75, then rising (the held-out phone pair of issue 17).

@@ -33,6 +33,7 @@ void VerdictOptions::check() const {
   if (!(max_flat_fraction > 0 && max_flat_fraction <= 1)) throw InvalidInput("verdict: max_flat_fraction in (0, 1]");
   if (!(flat_slope_fraction >= 0 && flat_slope_fraction < 1)) throw InvalidInput("verdict: flat_slope_fraction in [0, 1)");
   if (!(max_shape_sigma > 0)) throw InvalidInput("verdict: max_shape_sigma must be > 0");
+  if (!(max_chroma_shape_difference > 0)) throw InvalidInput("verdict: max_chroma_shape_difference must be > 0");
 }
 
 std::string ChannelVerdict::summary() const {
@@ -146,10 +147,26 @@ void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
            format("the kernel was estimated with the sharp shot's black areas admitted (black over %.0f %% of the "
                   "overlap; without them the estimate failed): an edge into black loses its dark side",
                   100 * e.kernel_sharp_black_admitted));
-  if (!e.pointwise_from_subsampled_chroma.empty())
-    j.find(VerdictLevel::weak, "fitted from a sharp JPEG with " + e.pointwise_from_subsampled_chroma +
-                                   " chroma: its " + e.channel + " at edges is rebuilt from block-averaged chroma, "
-                                   "which the pointwise model does not represent (--chroma-model auto fits around it)");
+  if (!e.pointwise_from_subsampled_chroma.empty()) {
+    const std::string subsampled = "fitted from a sharp JPEG with " + e.pointwise_from_subsampled_chroma +
+                                   " chroma: its " + e.channel + " at edges is rebuilt from block-averaged chroma";
+    const double d = e.chroma_check_shape_difference;
+    const std::string without =
+        format("its fit without the %.0f pixels where that chroma varies", e.chroma_check_pixels_left_out);
+    if (d >= 0 && d <= o.max_chroma_shape_difference)
+      j.notes.push_back(subsampled + (e.chroma_check_pixels_left_out == 0
+                                          ? std::string(", but no block's stored chroma varies beyond the image's "
+                                                        "typical block: nothing for the pointwise model to miss")
+                                          : ", but " + without +
+                                                format(" has the same shape (RMSE %.4f <= %.2g after the best scale)",
+                                                       d, o.max_chroma_shape_difference)));
+    else
+      j.find(VerdictLevel::weak,
+             subsampled + ", which the pointwise model does not represent" +
+                 (d >= 0 ? ": " + without + format(" differs in shape by %.4f (> %.2g)", d, o.max_chroma_shape_difference)
+                         : std::string()) +
+                 " (--chroma-model auto fits around it)");
+  }
   if (!e.covered) return;
   const auto [lo, hi] = *e.covered;
   if (hi - lo < o.min_covered_span)
@@ -270,6 +287,7 @@ std::map<std::string, ChannelVerdict> judgeChannels(const std::vector<ChannelEvi
     v.level = j.level;
     v.reasons = j.findings;
     if (v.reasons.empty()) v.reasons.push_back(passedNote(e, options));
+    v.reasons.insert(v.reasons.end(), j.notes.begin(), j.notes.end());
     if (!note.empty()) v.reasons.push_back(note);
   }
   return verdicts;

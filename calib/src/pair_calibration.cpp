@@ -97,6 +97,7 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   detail::combineRatioWithNominal(state);
   detail::summariseFits(state);
   if (options.band.replicates > 0) detail::estimateBands(state);
+  detail::checkPointwiseChroma(state);
   detail::computeVerdict(state);
   if (options.keep_fit_inputs) {
     PairFitInputs& inputs = state.result.fit_inputs;

@@ -11,6 +11,7 @@
 #include <opencv2/core.hpp>
 
 #include "crfcal/chroma_subsampling.hpp"
+#include "crfcal/curve_comparison.hpp"
 #include "crfcal/error.hpp"
 #include "crfcal/kernel.hpp"
 #include "pair_stages.hpp"
@@ -20,12 +21,16 @@ namespace crfcal::detail {
 
 void markChromaDetail(PairCalibrationState& state, const cv::Mat& sharp_in) {
   const PairCalibrationOptions& options = state.options;
-  if (!options.sharp_chroma.subsampled() || sharp_in.channels() != 3 || !options.rgb) return;
+  if (sharp_in.channels() != 3 || !options.rgb) return;
+  // Modelled (--chroma-model auto): the fits use the bound. Else, a subsampled file: the verdict's check uses it.
+  const bool modelled = options.sharp_chroma.subsampled();
+  if (!modelled && !options.sharp_stored_chroma.subsampled()) return;
+  const ChromaSubsampling sampling = modelled ? options.sharp_chroma : options.sharp_stored_chroma;
   for (const char* name : {"R", "B"}) {
-    cv::Mat bound = chromaErrorBound(sharp_in, options.sharp_chroma, name, options.chroma_detail);
+    cv::Mat bound = chromaErrorBound(sharp_in, sampling, name, options.chroma_detail);
     if (state.result.sharp_rotation_deg == -90) cv::rotate(bound, bound, cv::ROTATE_90_CLOCKWISE);
     else if (state.result.sharp_rotation_deg == 90) cv::rotate(bound, bound, cv::ROTATE_90_COUNTERCLOCKWISE);
-    state.sharp_chroma_error[name] = bound;
+    (modelled ? state.sharp_chroma_error : state.sharp_chroma_check_error)[name] = bound;
   }
 }
 
@@ -59,6 +64,8 @@ void chooseFitWindow(PairCalibrationState& state) {
     state.window_blurred[name] = b;
     if (const auto it = state.sharp_chroma_error.find(name); it != state.sharp_chroma_error.end())
       state.window_sharp_error[name] = it->second(window).clone();
+    if (const auto it = state.sharp_chroma_check_error.find(name); it != state.sharp_chroma_check_error.end())
+      state.window_sharp_check_error[name] = it->second(window).clone();
   }
 }
 
@@ -162,6 +169,54 @@ std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, con
   }
   state.report("fit", 1);
   return out;
+}
+
+void checkPointwiseChroma(PairCalibrationState& state) {
+  const PairCalibrationResult& result = state.result;
+  if (!state.options.sharp_stored_chroma.subsampled()) return;
+  // The pointwise R and B: every one without --chroma-model auto, and those auto's choice kept pointwise (their
+  // bound was dropped from window_sharp_error; the check rebuilds it from the stored sampling).
+  std::vector<std::string> names;
+  for (const char* name : {"R", "B"}) {
+    const auto& modelled = result.chroma_model_channels;
+    if (result.fits.count(name) && std::find(modelled.begin(), modelled.end(), name) == modelled.end()) names.push_back(name);
+  }
+  if (names.empty()) return;
+  if (state.window_sharp_check_error.empty() && state.options.sharp_chroma.subsampled()) {
+    // auto kept the pointwise fit: the bound of the modelled fit it compared with, cut to the window again
+    for (const auto& name : names)
+      if (const auto it = state.sharp_chroma_error.find(name); it != state.sharp_chroma_error.end())
+        state.window_sharp_check_error[name] = it->second(result.fit_window).clone();
+  }
+  const cv::Mat kernel = cropKernel(state.kernel, 0.0);  // as fitChannel hands it to the fitter
+  std::vector<std::pair<double, int>> check(names.size(), {-1.0, 0});
+  const std::vector<std::exception_ptr> errors = runInParallel(static_cast<int>(names.size()), [&](int i) {
+    const std::string& name = names[static_cast<std::size_t>(i)];
+    const auto bound = state.window_sharp_check_error.find(name);
+    if (bound == state.window_sharp_check_error.end()) return;
+    CrfFitOptions fo = state.fit_options;
+    fo.sharp_error_bound = bound->second;
+    fo.progress = nullptr;
+    const CrfFitResult flat = fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
+    const CrfFitResult& reported = result.fits.at(name);
+    const auto covered = [](const CrfFitResult& f) {
+      const double top = std::max(f.levels - 1, 1);
+      return IntensityRange{f.covered_levels.first / top, f.covered_levels.second / top};
+    };
+    check[static_cast<std::size_t>(i)] = {
+        compareCurves(flat.inverse_crf, reported.inverse_crf, covered(flat), covered(reported)).rmse_covered_aligned,
+        flat.pixels.unmodelled};
+  });
+  for (std::size_t i = 0; i < names.size(); ++i) {
+    if (errors[i]) {
+      try {
+        std::rethrow_exception(errors[i]);
+      } catch (const InvalidInput&) {
+        // too few pixels where the chroma is flat (or no range both cover): not checked, the blanket reason stays
+      }
+    }
+    state.chroma_check[names[i]] = check[i];
+  }
 }
 
 }  // namespace crfcal::detail

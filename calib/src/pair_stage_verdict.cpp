@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -181,6 +182,8 @@ void computeVerdict(PairCalibrationState& state) {
     if (name != "G" && options.sharp_stored_chroma.subsampled() &&
         std::find(modelled.begin(), modelled.end(), name) == modelled.end())
       e.pointwise_from_subsampled_chroma = options.sharp_stored_chroma.name();
+    if (const auto it = state.chroma_check.find(name); it != state.chroma_check.end())
+      std::tie(e.chroma_check_shape_difference, e.chroma_check_pixels_left_out) = it->second;
     evidence.push_back(e);
   }
   RefitEvidence refit;

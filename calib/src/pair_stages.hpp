@@ -79,9 +79,16 @@ struct PairCalibrationState {
   // chroma: per channel, the bound of the error a subsampled JPEG's chroma put into the sharp shot's decoded values
   // (chromaErrorBound; only R and B of a subsampled colour shot), in the sharp frame
   std::map<std::string, cv::Mat> sharp_chroma_error;
+  // The same bound for the channels the pointwise model fits from a subsampled sharp shot: the chroma check's fits
+  // (checkPointwiseChroma) use it; the reported fits do not.
+  std::map<std::string, cv::Mat> sharp_chroma_check_error;
 
   // fit window: both shots inside result.fit_window, per channel, in the images' depth (0 outside the overlap)
-  std::map<std::string, cv::Mat> window_sharp, window_blurred, window_sharp_error;
+  std::map<std::string, cv::Mat> window_sharp, window_blurred, window_sharp_error, window_sharp_check_error;
+  // checkPointwiseChroma: per pointwise channel of a subsampled sharp shot, the shape RMSE between its reported fit
+  // and its fit where the sharp shot's chroma is flat (< 0: that fit failed), and how many pixels that fit left out;
+  // read by computeVerdict.
+  std::map<std::string, std::pair<double, int>> chroma_check;
   // The pointwise fits of the channels that kept the chroma model (fitChannels' choice): the effect diagnostics see
   // these, so that their decisions — and G — are those of the pointwise model.
   std::map<std::string, CrfFitResult> pointwise_fits;
@@ -146,6 +153,10 @@ void chooseFitWindow(PairCalibrationState& state);
 // The sharp shot's chroma error bound per fitted channel (R, B) when its JPEG chroma is subsampled; `sharp_in` is the shot
 // as given (its blocks are aligned with its own origin), turned like state.sharp. After the orientation is known.
 void markChromaDetail(PairCalibrationState& state, const cv::Mat& sharp_in);
+// The chroma check of the verdict: each R or B fitted pointwise from a sharp shot whose JPEG chroma is subsampled is
+// fitted once more where that shot's chroma is flat (its error bound, as --chroma-model auto does), and the two fits'
+// shape difference over the range both cover is recorded (state.chroma_check_shape_difference). After the final fits.
+void checkPointwiseChroma(PairCalibrationState& state);
 // φ of channel `name` on the fit window with `kernel` (state.fit_options).
 CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& name, const cv::Mat& kernel);
 // fitChannel for several channels at once, one per core (the fits are independent; each splits its sums into as

@@ -75,6 +75,10 @@ struct VerdictOptions {
   // the shape to the accuracy asked of it. Derived from the target, not fitted to any pair; measured on the benches
   // and the phone pairs in docs/RESULTS.md#verdict.
   double max_shape_sigma = 0.01;
+  // Largest shape difference between a pointwise R or B of a subsampled sharp JPEG and its fit where that shot's
+  // chroma is flat for the subsampling not to make the channel weak: the same shape target (issue 17's 0.01), not
+  // fitted to any pair. Measured: docs/RESULTS.md#chroma-now.
+  double max_chroma_shape_difference = 0.01;
   void check() const;  // throws InvalidInput
 };
 
@@ -114,6 +118,11 @@ struct ChannelEvidence {
   // not the case). Its R and B at edges are rebuilt from chroma averaged over blocks after the tone curve; measured
   // on the bundled demo pair: φ_B 0.133 and φ_R 0.028 against G 0.0049 (docs/RESULTS.md#chroma) → weak.
   std::string pointwise_from_subsampled_chroma;
+  // Then: the shape RMSE (best common scale, over the range both cover) between this fit and the channel's fit where
+  // the sharp shot's chroma is flat (the chroma model's pixels); < 0: not measured. Within max_chroma_shape_difference
+  // the lost chroma did not bias this pair's curve, and the reason above is a note instead.
+  double chroma_check_shape_difference = -1;
+  int chroma_check_pixels_left_out = 0;  // the pixels that fit left out (0: no block's chroma varies, nothing to miss)
   // PairCalibrationResult::kernel_sharp_black_admitted: > 0 → weak (the kernel rests on edges into black).
   double kernel_sharp_black_admitted = 0;
 };
