@@ -21,7 +21,8 @@ using test::readJson;
 
 // One small 4:2:0 pair fitted per channel with the pointwise model (the default).
 nlohmann::json benchRgbCase(const fs::path& out) {
-  const auto result = test::run(quote(test::crfcalBinary()) + " bench pairs --channels rgb --band-replicates 0 --image " +
+  const auto result = test::run(quote(test::crfcalBinary()) +
+                                " bench pairs --channels rgb --band-replicates 0 --image " +
                                 quote(test::samples() / "effects" / "window.jpg") +
                                 " --max-side 200 --kernel levin:1 --crf gamma:2.2 -o " + quote(out));
   EXPECT_EQ(result.exit_code, 0) << result.output;
@@ -54,7 +55,9 @@ TEST(BenchPairsChannels, RgbRowsScoreEachChannelsShapeOverItsOwnCoveredRangeAndI
     EXPECT_NE(reasons.find("4:2:0"), std::string::npos) << reasons;
     const bool differs = reasons.find("differs in shape by") != std::string::npos;
     EXPECT_NE(differs, reasons.find("has the same shape") != std::string::npos) << reasons;
-    if (differs) EXPECT_NE(row.at("verdict_" + channel).get<std::string>(), "ok") << reasons;
+    if (differs) {
+      EXPECT_NE(row.at("verdict_" + channel).get<std::string>(), "ok") << reasons;
+    }
   }
   std::ifstream in(dir / "out" / "results.md");
   const std::string table((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());

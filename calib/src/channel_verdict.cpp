@@ -163,7 +163,8 @@ void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
     else
       j.find(VerdictLevel::weak,
              subsampled + ", which the pointwise model does not represent" +
-                 (d >= 0 ? ": " + without + format(" differs in shape by %.4f (> %.2g)", d, o.max_chroma_shape_difference)
+                 (d >= 0 ? ": " + without +
+                               format(" differs in shape by %.4f (> %.2g)", d, o.max_chroma_shape_difference)
                          : std::string()) +
                  " (--chroma-model auto fits around it)");
   }

@@ -172,15 +172,16 @@ std::map<std::string, CrfFitResult> fitChannels(PairCalibrationState& state, con
 }
 
 void checkPointwiseChroma(PairCalibrationState& state) {
-  const PairCalibrationResult& result = state.result;
+  PairCalibrationResult& result = state.result;
   if (!state.options.sharp_stored_chroma.subsampled()) return;
   // The pointwise R and B: every one without --chroma-model auto, and those auto's choice kept pointwise (their
   // bound was dropped from window_sharp_error; the check rebuilds it from the stored sampling).
+  const auto start = Clock::now();
+  const auto& modelled = result.chroma_model_channels;
   std::vector<std::string> names;
-  for (const char* name : {"R", "B"}) {
-    const auto& modelled = result.chroma_model_channels;
-    if (result.fits.count(name) && std::find(modelled.begin(), modelled.end(), name) == modelled.end()) names.push_back(name);
-  }
+  for (const char* name : {"R", "B"})
+    if (result.fits.count(name) && std::find(modelled.begin(), modelled.end(), name) == modelled.end())
+      names.push_back(name);
   if (names.empty()) return;
   if (state.window_sharp_check_error.empty() && state.options.sharp_chroma.subsampled()) {
     // auto kept the pointwise fit: the bound of the modelled fit it compared with, cut to the window again
@@ -217,6 +218,7 @@ void checkPointwiseChroma(PairCalibrationState& state) {
     }
     state.chroma_check[names[i]] = check[i];
   }
+  state.result.timings["chroma_check"] = secondsSince(start);
 }
 
 }  // namespace crfcal::detail

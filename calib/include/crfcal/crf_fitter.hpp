@@ -126,7 +126,8 @@ struct CrfFitOptions {
   double min_local_exponent = 0.25;
   // moments: a prior over φ outside the covered levels learned from measured curves (learned_curve_prior.hpp, issue
   // 19), added to the hand-set priors above (alone it lost to them: a synthetic r = 1 test,
-  // docs/RESULTS.md#learned-prior): the joint Gaussian of φ's local exponents, rows √learned_prior_weight · s · Σ^{-1/2}(g_U − E[g_U | g_O])
+  // docs/RESULTS.md#learned-prior): the joint Gaussian of φ's local exponents, rows
+  // √learned_prior_weight · s · Σ^{-1/2}(g_U − E[g_U | g_O])
   // outside the covered levels and Σ_OO^{-1/2}(g_O − μ_O) inside, s the prior-free fit's residual per data row (so
   // that weight 1 is the posterior); the fit with it is kept under prior_energy_factor like the hand-set priors.
   // null (default): the hand-set priors only.

@@ -178,7 +178,8 @@ struct HalfSampleRefits {
 // replicate must run the same estimator as the reported fit, so each half fits r from its images (r_half), forms
 // its own combination log r = log r_reported + w·(log r_half − log r_images) and refits φ with r held there. A
 // replicate that kept its images' r would carry the images' spread of r — along the exponential ambiguity φ^γ,
-// r^γ a spread of φ's exponent — where the reported curve carries only w times it (docs/RESULTS.md#curve-band-issue-19).
+// r^γ a spread of φ's exponent — where the reported curve carries only w times it
+// (docs/RESULTS.md#curve-band-issue-19).
 struct ReplicateRatioRule {
   double images_weight = 1;  // w ∈ [0, 1] (0: r held at the nominal ratio, 1: the images' r kept)
   double images_ratio = 1;   // r of the whole pair's images alone
