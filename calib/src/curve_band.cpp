@@ -184,8 +184,7 @@ CurveBand bandFromReplicates(const std::vector<double>& phi, const std::vector<s
   double s_lo = std::min(1.0, std::pow(x_hi, g_hi) / top), s_hi = std::max(1.0, std::pow(x_hi, g_lo) / top);
   // Or the learned prior's quantiles of the continuation (CurveBandOptions::above_data_prior).
   std::optional<PriorContinuation> continuation;
-  if (options.above_data_prior && i1 < n - 1 && x_hi >= 1.0 / LearnedCurvePrior::kNodes &&
-      std::floor(x_hi * LearnedCurvePrior::kNodes) >= std::ceil(x_lo * LearnedCurvePrior::kNodes)) {
+  if (options.above_data_prior && i1 < n - 1 && coversANode({x_lo, x_hi})) {
     continuation = continuationQuantiles(*options.above_data_prior, phi, {x_lo, x_hi}, options.level,
                                          options.above_data_draws, options.seed);
     s_lo = std::min(1.0, continuation->scale_range.first);

@@ -177,6 +177,8 @@ std::vector<double> extrapolateWithPrior(const LearnedCurvePrior& prior, const s
   return out;
 }
 
+bool coversANode(std::pair<double, double> covered) { return highestNodeInside(covered) > 0; }
+
 PriorContinuation continuationQuantiles(const LearnedCurvePrior& prior, const std::vector<double>& inverse_crf,
                                         std::pair<double, double> covered, double level, int draws,
                                         std::uint64_t seed) {

@@ -67,6 +67,10 @@ ConditionalExponents conditionOnCovered(const LearnedCurvePrior& prior, std::pai
 std::vector<double> extrapolateWithPrior(const LearnedCurvePrior& prior, const std::vector<double>& inverse_crf,
                                          std::pair<double, double> covered);
 
+// Whether a node x = j/64 (j ≥ 1) lies inside the covered range: what extrapolateWithPrior and continuationQuantiles
+// continue the curve from (without one they throw).
+bool coversANode(std::pair<double, double> covered);
+
 // The prior's spread of φ beyond the data, as pointwise quantiles (issue 19: a band above the covered range that is a
 // probability, not a bound). Each draw takes the exponents outside the covered range from the conditional Gaussian
 // (conditionOnCovered, given the curve's own exponents inside), continues the curve from its highest node inside the
