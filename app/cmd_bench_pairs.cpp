@@ -208,9 +208,7 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   if (args.chroma_model == "auto") options.sharp_chroma = options.sharp_stored_chroma;
   options.fit.ratio_prior_sigma = args.ratio_prior;
   options.fit.censored_weight = args.censored_weight;
-  options.fit.model = args.model == "ggcm" ? CrfModelChoice::ggcm
-                      : args.model == "emor" ? CrfModelChoice::emor
-                                             : CrfModelChoice::automatic;
+  options.fit.model = crfModelFromName(args.model);
   options.fit.emor_terms = args.emor_terms;
   options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
   options.fit.fit_ratio = !args.fix_ratio;
@@ -707,7 +705,7 @@ const BenchRegistration registration(
           ->check(CLI::NonNegativeNumber);
       command.add_option("--model", args->model, "Model of phi, as calibrate --model: ggcm, emor or auto")
           ->capture_default_str()
-          ->check(CLI::IsMember({"ggcm", "emor", "auto"}));
+          ->check(crfModelNames());
       command.add_option("--emor-terms", args->emor_terms, "EMoR basis curves of the fit, as calibrate --emor-terms")
           ->capture_default_str()
           ->check(CLI::Range(1, 25));

@@ -229,9 +229,7 @@ PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nomi
   options.fit.ratio_prior_sigma = args.ratio_prior;
   options.fit.censored_weight = args.censored_weight;
   options.fit.experimental.noise = noiseHandlingFromString(args.noise_handling);
-  options.fit.model = args.model == "ggcm" ? CrfModelChoice::ggcm
-                      : args.model == "emor" ? CrfModelChoice::emor
-                                             : CrfModelChoice::automatic;
+  options.fit.model = crfModelFromName(args.model);
   options.fit.emor_terms = args.emor_terms;
   options.fit.threads = args.threads;
   if (!args.kernel_file.empty()) options.given_kernel = io::readKernel(args.kernel_file);
@@ -533,7 +531,7 @@ const CommandRegistration registration(
       command.add_option("--channels", args->channels, "Channels to fit: g (green only) or rgb")
           ->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--model", args->model, "Model of phi: ggcm (Eq. 19), emor (PCA), auto (cross-validated)")
-          ->check(CLI::IsMember({"ggcm", "emor", "auto"}));
+          ->check(crfModelNames());
       command.add_option("--emor-terms", args->emor_terms,
                          "EMoR basis curves of the emor model (Grossberg & Nayar: 3-5 reach DoRF accuracy)")
           ->capture_default_str()

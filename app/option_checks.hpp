@@ -6,6 +6,8 @@
 
 #include <CLI/CLI.hpp>
 
+#include "crfcal/crf_fitter.hpp"
+
 namespace crfcal::app {
 
 // --threads: far above any machine crfcal runs on, and below what TBB's allocator survives (100000 threads
@@ -29,6 +31,14 @@ inline CLI::Validator exposureRatioOption(bool zero_means_exif = true) {
                std::string(zero_means_exif ? " (or 0: from EXIF)" : "");
       },
       zero_means_exif ? "0|0.001..1000" : "0.001..1000");
+}
+
+// --model: the model of φ by its name (toString(CrfModelChoice)).
+inline CLI::IsMember crfModelNames() { return CLI::IsMember({"ggcm", "emor", "auto"}); }
+inline CrfModelChoice crfModelFromName(const std::string& name) {
+  for (const CrfModelChoice c : {CrfModelChoice::ggcm, CrfModelChoice::emor, CrfModelChoice::automatic})
+    if (name == toString(c)) return c;
+  throw CLI::ValidationError("--model", "'" + name + "' is not ggcm, emor or auto");  // crfModelNames() refused it
 }
 
 // Refits of a band of φ (curve_band.hpp, scaled_fit_band.hpp): 0 (no band) to 200, even (they come in complementary
