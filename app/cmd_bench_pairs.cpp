@@ -61,7 +61,7 @@ struct PairsArgs {
   int sharp_quality = 0;
   double sharp_noise_scale = 1;
   std::string jpeg_sampling = "4:2:0";
-  std::string chroma_model = "off";     // as calibrate --chroma-model  // chroma sampling of both shots (4:2:0: OpenCV's writer, as before)
+  std::string chroma_model = "check";  // as calibrate --chroma-model
   int max_side = 800;
   int kernel_size = 35;
   std::string channels = "g";
@@ -203,9 +203,9 @@ PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::Loade
   options.kernel.kernel_size = args.kernel_size;
   options.rgb = args.channels == "rgb";
   options.fit.nominal_ratio = loaded.exif_ratio->ratio();
-  // As calibrate: the sharp shot's stored chroma sampling (its R and B verdicts), modelled only when asked.
+  // As calibrate: the sharp shot's stored chroma sampling (the chroma check, the R and B verdicts).
   options.sharp_stored_chroma = {loaded.sharp.chroma_block_h, loaded.sharp.chroma_block_v};
-  if (args.chroma_model == "auto") options.sharp_chroma = options.sharp_stored_chroma;
+  applyChromaModel(args.chroma_model, options);
   options.fit.ratio_prior_sigma = args.ratio_prior;
   options.fit.censored_weight = args.censored_weight;
   options.fit.model = crfModelFromName(args.model);
@@ -654,9 +654,9 @@ const BenchRegistration registration(
                          "DSLRs) or 4:4:4 (libjpeg)")
           ->capture_default_str()
           ->check(CLI::IsMember({"4:2:0", "4:2:2", "4:4:4"}));
-      command.add_option("--chroma-model", args->chroma_model, "auto or off, as calibrate --chroma-model")
+      command.add_option("--chroma-model", args->chroma_model, "check, auto or off, as calibrate --chroma-model")
           ->capture_default_str()
-          ->check(CLI::IsMember({"auto", "off"}));
+          ->check(chromaModelNames());
       command.add_option("--max-side", args->max_side, "Downscale the photo to this longest side")->capture_default_str();
       command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)")
           ->capture_default_str()

@@ -38,9 +38,8 @@ namespace {
 struct CalibrateArgs {
   std::string first, second, output;
   std::string channels = "rgb";
-  // auto: the sharp JPEG's chroma sampling picks the model, chosen per channel (issue 20); off (default: measured
-  // worse than the pointwise model at r = 4 and on one 4:2:2 scene, docs/RESULTS.md#chroma-choice)
-  std::string chroma_model = "off";
+  // check (default), auto or off: applyChromaModel (option_checks.hpp); issue 20
+  std::string chroma_model = "check";
   std::string model = "auto";
   int emor_terms = PairCalibrationOptions{}.fit.emor_terms;  // EMoR basis curves of the fit
   double ratio = 0;  // 0: from EXIF
@@ -358,7 +357,7 @@ int runCalibrate(const CalibrateArgs& args) {
 
   PairCalibrationOptions options = calibrationOptions(args, nominal_ratio);
   options.sharp_stored_chroma = {pair.sharp.chroma_block_h, pair.sharp.chroma_block_v};
-  if (args.chroma_model == "auto") options.sharp_chroma = options.sharp_stored_chroma;
+  applyChromaModel(args.chroma_model, options);
   StageProgress stages{progress, {}};
   options.progress = [&stages](const std::string& stage, double fraction, const std::string& detail) {
     stages.report(stage, fraction, detail);
@@ -451,7 +450,7 @@ int runCalibrateJoint(const CalibrateArgs& args) {
     PairCalibrationOptions options = calibrationOptions(one, nominal.back());
     options.keep_fit_inputs = true;
     options.sharp_stored_chroma = {loaded.back().sharp.chroma_block_h, loaded.back().sharp.chroma_block_v};
-    if (args.chroma_model == "auto") options.sharp_chroma = options.sharp_stored_chroma;
+    applyChromaModel(args.chroma_model, options);
     StageProgress stages{progress, {}};
     options.progress = [&stages, p](const std::string& stage, double fraction, const std::string& detail) {
       stages.report("pair " + std::to_string(p + 1) + " " + stage, fraction, detail);
@@ -521,13 +520,13 @@ const CommandRegistration registration(
       command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
       command.add_flag("--force", args->force, kForceHelp);
       command.add_option("--chroma-model", args->chroma_model,
-                         "auto: a sharp JPEG with subsampled chroma (4:2:0, 4:2:2) fits R and B also only where its "
-                         "lost chroma detail is small, and keeps that fit where it lies above the pointwise one (better "
-                         "R and B in every semi-real scene at r = 1, B worse at r = 4 and on one 4:2:2 scene: "
-                         "docs/RESULTS.md#chroma-choice); "
-                         "off: the pointwise model everywhere")
+                         "For a sharp JPEG with subsampled chroma (4:2:0, 4:2:2). check: the pointwise model, and "
+                         "an R or B whose fit where the lost chroma detail is small differs in shape and lies above "
+                         "(the sign of that loss's bias) is replaced by that fit (docs/RESULTS.md#chroma-replace); "
+                         "auto: R and B fitted both ways in every round, keeping the chroma model's fit where it lies "
+                         "above (docs/RESULTS.md#chroma-choice); off: the pointwise model everywhere")
           ->capture_default_str()
-          ->check(CLI::IsMember({"auto", "off"}));
+          ->check(chromaModelNames());
       command.add_option("--channels", args->channels, "Channels to fit: g (green only) or rgb")
           ->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--model", args->model, "Model of phi: ggcm (Eq. 19), emor (PCA), auto (cross-validated)")

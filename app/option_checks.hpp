@@ -7,6 +7,7 @@
 #include <CLI/CLI.hpp>
 
 #include "crfcal/crf_fitter.hpp"
+#include "crfcal/pair_calibration.hpp"
 
 namespace crfcal::app {
 
@@ -39,6 +40,17 @@ inline CrfModelChoice crfModelFromName(const std::string& name) {
   for (const CrfModelChoice c : {CrfModelChoice::ggcm, CrfModelChoice::emor, CrfModelChoice::automatic})
     if (name == toString(c)) return c;
   throw CLI::ValidationError("--model", "'" + name + "' is not ggcm, emor or auto");  // crfModelNames() refused it
+}
+
+// --chroma-model, for a sharp JPEG whose chroma is subsampled (docs/RESULTS.md#chroma-replace):
+//   check (default): the pointwise model; the chroma check replaces an R or B fit the lost chroma biased
+//   auto: R and B fitted both ways in every round, the chroma model kept where its fit lies above (ChromaModelChoice)
+//   off: the pointwise model everywhere; the check only informs the verdict
+inline CLI::IsMember chromaModelNames() { return CLI::IsMember({"check", "auto", "off"}); }
+// Sets `options` for --chroma-model `name`; options.sharp_stored_chroma must already hold the sharp file's sampling.
+inline void applyChromaModel(const std::string& name, PairCalibrationOptions& options) {
+  if (name == "auto") options.sharp_chroma = options.sharp_stored_chroma;
+  options.replace_chroma_biased_fits = name != "off";
 }
 
 // Refits of a band of φ (curve_band.hpp, scaled_fit_band.hpp): 0 (no band) to 200, even (they come in complementary

@@ -134,8 +134,9 @@ TEST(ChannelVerdict, ColourChannelFromSubsampledSharpChromaIsWeak) {
 }
 
 // The chroma check (docs/RESULTS.md#chroma-now): a pointwise B whose fit where the sharp shot's chroma is flat has the
-// same shape was not biased by the subsampling; one that differs by more than the shape target was.
-TEST(ChannelVerdict, SubsampledChromaIsWeakOnlyWhenTheFlatChromaFitDiffersInShape) {
+// same shape was not biased by the subsampling; one that differs by more than the shape target and lies above it (the
+// sign of the lost chroma's bias) was; one that lies below moved against that sign.
+TEST(ChannelVerdict, SubsampledChromaIsWeakOnlyWhenTheFlatChromaFitDiffersInShapeAndLiesAbove) {
   ChannelEvidence e = clean("B");
   e.pointwise_from_subsampled_chroma = "4:2:0";
   e.chroma_check_shape_difference = 0.004;
@@ -148,6 +149,28 @@ TEST(ChannelVerdict, SubsampledChromaIsWeakOnlyWhenTheFlatChromaFitDiffersInShap
   EXPECT_EQ(differing.level, VerdictLevel::weak) << differing.summary();
   EXPECT_TRUE(mentions(differing, "without the 500 pixels")) << differing.summary();
   EXPECT_TRUE(mentions(differing, "differs in shape by 0.0300")) << differing.summary();
+  e.chroma_check_scale = 1.2;  // the flat-chroma fit lies above: the sign of the lost chroma's bias
+  const ChannelVerdict above = judgeOne(e);
+  EXPECT_EQ(above.level, VerdictLevel::weak) << above.summary();
+  EXPECT_TRUE(mentions(above, "lies above it (scale 1.200)")) << above.summary();
+  e.chroma_check_not_replaced = "that fit does not fix the curve's exponent by itself";
+  EXPECT_TRUE(mentions(judgeOne(e), "(scale 1.200), as the lost chroma's bias predicts; that fit does not fix"));
+  e.chroma_check_not_replaced.clear();
+  e.chroma_check_scale = 0.9;  // below: against that sign, the thinner fit's own noise
+  const ChannelVerdict below = judgeOne(e);
+  EXPECT_EQ(below.level, VerdictLevel::ok) << below.summary();
+  EXPECT_TRUE(mentions(below, "lies below it (scale 0.900 <= 1)")) << below.summary();
+  // Replaced by the flat-chroma fit (the pair stage's decision): no longer pointwise, a note says why.
+  ChannelEvidence replaced = clean("B");
+  replaced.chroma_check_replaced = true;
+  replaced.chroma_check_shape_difference = 0.03;
+  replaced.chroma_check_scale = 1.2;
+  const ChannelVerdict flat = judgeOne(replaced);
+  EXPECT_EQ(flat.level, VerdictLevel::ok) << flat.summary();
+  EXPECT_TRUE(mentions(flat, "fitted where the sharp shot's subsampled chroma is flat: the pointwise fit differed "
+                             "from this one in shape by 0.0300"))
+      << flat.summary();
+  e.chroma_check_scale = 0;
   e.chroma_check_shape_difference = 0;  // nothing left out: the same fit
   e.chroma_check_pixels_left_out = 0;
   const ChannelVerdict nothing = judgeOne(e);

@@ -1,6 +1,9 @@
 // Issue 20: JPEG chroma subsampling in the pair model (chroma_subsampling.hpp, CrfFitOptions::sharp_error_bound).
 #include <cmath>
+#include <filesystem>
 #include <fstream>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -127,6 +130,56 @@ TEST(ChromaModel, SubsampledSharpShotBlueCurveCloserToTruth) {
   for (const char* name : {"R", "G", "B"})
     EXPECT_EQ(refused.fits.at(name).inverse_crf, pointwise.fits.at(name).inverse_crf) << name;
   EXPECT_EQ(refused.chroma_model_scale.at("B"), modelled.chroma_model_scale.at("B"));
+}
+
+// The chroma check's replacement (PairCalibrationOptions::replace_chroma_biased_fits, docs/RESULTS.md#chroma-replace)
+// on the demo pair, fitted pointwise with its stored 4:2:0 sampling known: B's pointwise fit differs in shape from its
+// fit where the chroma is flat and lies below it, so that fit is reported (close to the truth); R's does not differ,
+// so R stays pointwise; G is untouched. Off, or asked for more than the flat fit's ambiguity rise, B stays pointwise
+// and its verdict says why.
+TEST(ChromaCheck, BiasedBlueIsReplacedByItsFlatChromaFitUnlessOffOrItsExponentIsFree) {
+  const std::filesystem::path pairs = test::samples() / "pairs";
+  const io::LoadedPair pair = io::loadPair(pairs / "sharp.jpg", pairs / "blurred.jpg");
+  const std::vector<double> truth = demoTruth();
+  const auto run = [&pair](bool replace, double min_rise) {
+    PairCalibrationOptions options;
+    options.fit.nominal_ratio = pair.exif_ratio->ratio();
+    options.effects.enabled = false;
+    options.sharp_stored_chroma = {pair.sharp.chroma_block_h, pair.sharp.chroma_block_v};
+    options.replace_chroma_biased_fits = replace;
+    options.chroma_replacement_min_ambiguity_rise = min_rise;
+    return calibratePair(pair.sharp.image, pair.blurred.image, options);
+  };
+  const double default_rise = PairCalibrationOptions{}.chroma_replacement_min_ambiguity_rise;
+  const PairCalibrationResult replaced = run(true, default_rise);
+  const PairCalibrationResult off = run(false, default_rise);
+  const PairCalibrationResult refused = run(true, 1e6);
+  EXPECT_EQ(replaced.chroma_model_channels, (std::vector<std::string>{"B"}));
+  EXPECT_TRUE(off.chroma_model_channels.empty());
+  EXPECT_TRUE(refused.chroma_model_channels.empty());
+  EXPECT_GT(replaced.fits.at("B").pixels.unmodelled, 0);
+  for (const char* name : {"R", "G"})
+    EXPECT_EQ(replaced.fits.at(name).inverse_crf, off.fits.at(name).inverse_crf) << name;
+  EXPECT_EQ(refused.fits.at("B").inverse_crf, off.fits.at("B").inverse_crf);
+  const double b_off = curveRmse(off.fits.at("B").inverse_crf, truth);
+  const double b_replaced = curveRmse(replaced.fits.at("B").inverse_crf, truth);
+  EXPECT_GT(b_off, 0.08);       // 0.133 measured
+  EXPECT_LT(b_replaced, 0.04);  // 0.024 measured
+  const auto reasons = [](const PairCalibrationResult& r) {
+    std::string all;
+    for (const auto& s : r.verdicts.at("B").reasons) all += s + "\n";
+    return all;
+  };
+  EXPECT_NE(reasons(replaced).find("fitted where the sharp shot's subsampled chroma is flat"), std::string::npos)
+      << reasons(replaced);
+  EXPECT_EQ(off.verdicts.at("B").level, VerdictLevel::weak);
+  EXPECT_EQ(reasons(off).find("does not fix the curve's exponent"), std::string::npos) << reasons(off);
+  EXPECT_EQ(refused.verdicts.at("B").level, VerdictLevel::weak);
+  EXPECT_NE(reasons(refused).find("does not fix the curve's exponent by itself"), std::string::npos)
+      << reasons(refused);
+  PairCalibrationOptions bad;
+  bad.chroma_replacement_min_ambiguity_rise = -1;
+  EXPECT_THROW(bad.check(), InvalidInput);
 }
 
 }  // namespace

@@ -147,6 +147,11 @@ void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
            format("the kernel was estimated with the sharp shot's black areas admitted (black over %.0f %% of the "
                   "overlap; without them the estimate failed): an edge into black loses its dark side",
                   100 * e.kernel_sharp_black_admitted));
+  if (e.chroma_check_replaced)
+    j.notes.push_back(format("fitted where the sharp shot's subsampled chroma is flat: the pointwise fit differed "
+                             "from this one in shape by %.4f (> %.2g) and lay below it (scale %.3f), the bias the "
+                             "lost chroma puts in",
+                             e.chroma_check_shape_difference, o.max_chroma_shape_difference, e.chroma_check_scale));
   if (!e.pointwise_from_subsampled_chroma.empty()) {
     const std::string subsampled = "fitted from a sharp JPEG with " + e.pointwise_from_subsampled_chroma +
                                    " chroma: its " + e.channel + " at edges is rebuilt from block-averaged chroma";
@@ -160,13 +165,26 @@ void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
                                           : ", but " + without +
                                                 format(" has the same shape (RMSE %.4f <= %.2g after the best scale)",
                                                        d, o.max_chroma_shape_difference)));
-    else
-      j.find(VerdictLevel::weak,
-             subsampled + ", which the pointwise model does not represent" +
-                 (d >= 0 ? ": " + without +
-                               format(" differs in shape by %.4f (> %.2g)", d, o.max_chroma_shape_difference)
-                         : std::string()) +
-                 " (--chroma-model auto fits around it)");
+    else if (d >= 0 && e.chroma_check_scale > 0 && e.chroma_check_scale <= 1)
+      // The lost chroma lowers a pointwise φ over the data (chroma_subsampling.hpp ChromaModelChoice): a fit freed
+      // of it lies above. One that lies below moved against that bias, by the noise of its thinner data.
+      j.notes.push_back(subsampled + ", but " + without +
+                        format(", which differs in shape by %.4f, lies below it (scale %.3f <= 1): against the "
+                               "sign of the bias the lost chroma puts in, so the difference is that thinner fit's own",
+                               d, e.chroma_check_scale));
+    else {
+      std::string measured;  // what the check found, and why its fit is not the reported one
+      if (d >= 0) {
+        measured = ": " + without + format(" differs in shape by %.4f (> %.2g)", d, o.max_chroma_shape_difference);
+        if (e.chroma_check_scale > 0)
+          measured += format(" and lies above it (scale %.3f), as the lost chroma's bias predicts",
+                             e.chroma_check_scale) +
+                      (e.chroma_check_not_replaced.empty() ? std::string(" (--chroma-model check, the default, "
+                                                                         "reports that fit)")
+                                                           : "; " + e.chroma_check_not_replaced);
+      }
+      j.find(VerdictLevel::weak, subsampled + ", which the pointwise model does not represent" + measured);
+    }
   }
   if (!e.covered) return;
   const auto [lo, hi] = *e.covered;

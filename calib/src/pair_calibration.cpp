@@ -30,6 +30,8 @@ void PairCalibrationOptions::check() const {
   verdict.check();
   ratio_evidence.check();
   chroma_detail.check();
+  if (!(chroma_replacement_min_ambiguity_rise >= 0))
+    throw InvalidInput("chroma_replacement_min_ambiguity_rise must be >= 0");
   chroma_choice.check();
   for (const ChromaSubsampling& c : {sharp_chroma, sharp_stored_chroma})
     if (c.h < 1 || c.v < 1 || c.h > 4 || c.v > 4) throw InvalidInput("chroma sampling factors must be 1..4");
@@ -95,9 +97,9 @@ PairCalibrationResult calibratePair(const cv::Mat& sharp, const cv::Mat& blurred
   detail::fitKernelPhiRounds(state);
   if (options.effects.enabled) detail::diagnoseResidualEffects(state);
   detail::combineRatioWithNominal(state);
+  detail::checkPointwiseChroma(state);
   detail::summariseFits(state);
   if (options.band.replicates > 0) detail::estimateBands(state);
-  detail::checkPointwiseChroma(state);
   detail::computeVerdict(state);
   if (options.keep_fit_inputs) {
     PairFitInputs& inputs = state.result.fit_inputs;

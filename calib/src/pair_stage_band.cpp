@@ -43,8 +43,12 @@ void estimateBands(PairCalibrationState& state) {
     const auto covered = result.covered_range.find(name);
     if (covered == result.covered_range.end() || !result.fits.count(name)) continue;
     state.report("band", double(done++) / result.channels.size(), name);
+    // A channel fitted where the sharp shot's chroma is flat: its refits too (as fitChannel's options).
+    CrfFitOptions channel_options = fit_options;
+    if (const auto bound = state.window_sharp_error.find(name); bound != state.window_sharp_error.end())
+      channel_options.sharp_error_bound = bound->second;
     result.bands[name] = estimateCurveBand(state.window_sharp.at(name), state.window_blurred.at(name), kernel,
-                                           fit_options, result.fits.at(name), covered->second,
+                                           channel_options, result.fits.at(name), covered->second,
                                            state.options.band, ratio_rule, ratio_log_sigma);
   }
   result.timings["band"] = secondsSince(start);

@@ -190,7 +190,12 @@ void checkPointwiseChroma(PairCalibrationState& state) {
         state.window_sharp_check_error[name] = it->second(result.fit_window).clone();
   }
   const cv::Mat kernel = cropKernel(state.kernel, 0.0);  // as fitChannel hands it to the fitter
-  std::vector<std::pair<double, int>> check(names.size(), {-1.0, 0});
+  const auto covered = [](const CrfFitResult& f) {
+    const double top = std::max(f.levels - 1, 1);
+    return IntensityRange{f.covered_levels.first / top, f.covered_levels.second / top};
+  };
+  std::vector<PairCalibrationState::ChromaCheck> check(names.size());
+  std::vector<std::optional<CrfFitResult>> flat_fits(names.size());
   const std::vector<std::exception_ptr> errors = runInParallel(static_cast<int>(names.size()), [&](int i) {
     const std::string& name = names[static_cast<std::size_t>(i)];
     const auto bound = state.window_sharp_check_error.find(name);
@@ -200,13 +205,10 @@ void checkPointwiseChroma(PairCalibrationState& state) {
     fo.progress = nullptr;
     const CrfFitResult flat = fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
     const CrfFitResult& reported = result.fits.at(name);
-    const auto covered = [](const CrfFitResult& f) {
-      const double top = std::max(f.levels - 1, 1);
-      return IntensityRange{f.covered_levels.first / top, f.covered_levels.second / top};
-    };
-    check[static_cast<std::size_t>(i)] = {
-        compareCurves(flat.inverse_crf, reported.inverse_crf, covered(flat), covered(reported)).rmse_covered_aligned,
-        flat.pixels.unmodelled};
+    const ChannelComparison c = compareCurves(flat.inverse_crf, reported.inverse_crf, covered(flat), covered(reported));
+    check[static_cast<std::size_t>(i)] = {c.rmse_covered_aligned, flat.pixels.unmodelled, c.scale_covered,
+                                          flat.ambiguity_rise};
+    flat_fits[static_cast<std::size_t>(i)] = flat;
   });
   for (std::size_t i = 0; i < names.size(); ++i) {
     if (errors[i]) {
@@ -216,7 +218,19 @@ void checkPointwiseChroma(PairCalibrationState& state) {
         // too few pixels where the chroma is flat (or no range both cover): not checked, the blanket reason stays
       }
     }
-    state.chroma_check[names[i]] = check[i];
+    // Beyond the shape target and above the pointwise fit (the sign of the lost chroma's bias), and fixing the
+    // exponent by itself: the flat-chroma fit is reported, as --chroma-model auto would keep it; its bound goes with
+    // it (bands, joint fits).
+    PairCalibrationState::ChromaCheck& c = check[i];
+    c.replaced = state.options.replace_chroma_biased_fits && !result.effects.refit_adopted && flat_fits[i] &&
+                 c.shape_difference > state.options.verdict.max_chroma_shape_difference && c.scale > 1 &&
+                 c.ambiguity_rise >= state.options.chroma_replacement_min_ambiguity_rise;
+    if (c.replaced) {
+      result.fits[names[i]] = std::move(*flat_fits[i]);
+      result.chroma_model_channels.push_back(names[i]);
+      state.window_sharp_error[names[i]] = state.window_sharp_check_error.at(names[i]);
+    }
+    state.chroma_check[names[i]] = c;
   }
   state.result.timings["chroma_check"] = secondsSince(start);
 }

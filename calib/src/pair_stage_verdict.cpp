@@ -182,8 +182,23 @@ void computeVerdict(PairCalibrationState& state) {
     if (name != "G" && options.sharp_stored_chroma.subsampled() &&
         std::find(modelled.begin(), modelled.end(), name) == modelled.end())
       e.pointwise_from_subsampled_chroma = options.sharp_stored_chroma.name();
-    if (const auto it = state.chroma_check.find(name); it != state.chroma_check.end())
-      std::tie(e.chroma_check_shape_difference, e.chroma_check_pixels_left_out) = it->second;
+    if (const auto it = state.chroma_check.find(name); it != state.chroma_check.end()) {
+      const PairCalibrationState::ChromaCheck& c = it->second;
+      e.chroma_check_shape_difference = c.shape_difference;
+      e.chroma_check_pixels_left_out = c.pixels_left_out;
+      e.chroma_check_scale = c.scale;
+      e.chroma_check_replaced = c.replaced;
+      const double min_rise = options.chroma_replacement_min_ambiguity_rise;
+      if (!c.replaced && options.replace_chroma_biased_fits && c.scale > 1 &&
+          c.shape_difference > options.verdict.max_chroma_shape_difference && c.ambiguity_rise < min_rise) {
+        char text[200];
+        std::snprintf(text, sizeof text,
+                      "that fit does not fix the curve's exponent by itself (ambiguity rise %.3g < %.3g), so it is "
+                      "not reported instead",
+                      c.ambiguity_rise, min_rise);
+        e.chroma_check_not_replaced = text;
+      }
+    }
     evidence.push_back(e);
   }
   RefitEvidence refit;

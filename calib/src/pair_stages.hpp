@@ -85,10 +85,15 @@ struct PairCalibrationState {
 
   // fit window: both shots inside result.fit_window, per channel, in the images' depth (0 outside the overlap)
   std::map<std::string, cv::Mat> window_sharp, window_blurred, window_sharp_error, window_sharp_check_error;
-  // checkPointwiseChroma: per pointwise channel of a subsampled sharp shot, the shape RMSE between its reported fit
-  // and its fit where the sharp shot's chroma is flat (< 0: that fit failed), and how many pixels that fit left out;
-  // read by computeVerdict.
-  std::map<std::string, std::pair<double, int>> chroma_check;
+  // checkPointwiseChroma: per pointwise channel of a subsampled sharp shot; read by computeVerdict.
+  struct ChromaCheck {
+    double shape_difference = -1;  // shape RMSE, reported fit vs its fit where the sharp chroma is flat (< 0: failed)
+    int pixels_left_out = 0;       // how many pixels that fit left out
+    double scale = 0;              // best factor a: flat-chroma fit ≈ a · reported fit (0: not measured)
+    double ambiguity_rise = 0;     // the flat-chroma fit's CrfFitResult::ambiguity_rise
+    bool replaced = false;         // the flat-chroma fit is reported (options.replace_chroma_biased_fits)
+  };
+  std::map<std::string, ChromaCheck> chroma_check;
   // The pointwise fits of the channels that kept the chroma model (fitChannels' choice): the effect diagnostics see
   // these, so that their decisions — and G — are those of the pointwise model.
   std::map<std::string, CrfFitResult> pointwise_fits;
@@ -155,7 +160,8 @@ void chooseFitWindow(PairCalibrationState& state);
 void markChromaDetail(PairCalibrationState& state, const cv::Mat& sharp_in);
 // The chroma check of the verdict: each R or B fitted pointwise from a sharp shot whose JPEG chroma is subsampled is
 // fitted once more where that shot's chroma is flat (its error bound, as --chroma-model auto does), and the two fits'
-// shape difference over the range both cover is recorded (state.chroma_check_shape_difference). After the final fits.
+// shape difference and scale over the range both cover are recorded (state.chroma_check); a fit biased by the lost
+// chroma is replaced (options.replace_chroma_biased_fits). After the final fits, before the summaries and bands.
 void checkPointwiseChroma(PairCalibrationState& state);
 // φ of channel `name` on the fit window with `kernel` (state.fit_options).
 CrfFitResult fitChannel(const PairCalibrationState& state, const std::string& name, const cv::Mat& kernel);

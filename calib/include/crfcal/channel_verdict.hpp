@@ -123,6 +123,18 @@ struct ChannelEvidence {
   // the lost chroma did not bias this pair's curve, and the reason above is a note instead.
   double chroma_check_shape_difference = -1;
   int chroma_check_pixels_left_out = 0;  // the pixels that fit left out (0: no block's chroma varies, nothing to miss)
+  // The least-squares factor a of (flat-chroma fit) ≈ a · (this fit) over the range both cover; 0: not measured.
+  // The bias the lost chroma puts into a pointwise fit has a known sign (chroma_subsampling.hpp ChromaModelChoice:
+  // it lowers φ over the data), so a flat-chroma fit that removes it lies above this one: a > 1. A difference beyond
+  // max_chroma_shape_difference with a <= 1 moved against that bias (the thinner data's noise): a note, not weak.
+  double chroma_check_scale = 0;
+  // The chroma check replaced this channel's pointwise fit by its fit where the sharp shot's chroma is flat
+  // (PairCalibrationOptions::replace_chroma_biased_fits; the difference and scale above are the pointwise fit's): a
+  // note saying so.
+  bool chroma_check_replaced = false;
+  // Why a flat-chroma fit that differs beyond the target and lies above was not reported instead (e.g. it does not
+  // fix the curve's exponent by itself); empty: none, or it was replaced.
+  std::string chroma_check_not_replaced;
   // PairCalibrationResult::kernel_sharp_black_admitted: > 0 → weak (the kernel rests on edges into black).
   double kernel_sharp_black_admitted = 0;
 };

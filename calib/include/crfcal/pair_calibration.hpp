@@ -69,15 +69,28 @@ struct PairCalibrationOptions {
   // (chroma_subsampling.hpp, issue 20); G, carried by luma, keeps today's model. The blurred shot's chroma needs
   // nothing: its blur removed the detail the blocks lose. Measured (docs/RESULTS.md#chroma-choice, with chroma_choice):
   // demo pair B 0.133 → 0.024; 27 semi-real pairs at r = 1 R 0.0202 → 0.0143, B 0.0676 → 0.0253, but at r = 4
-  // B 0.0143 → 0.0168 and at 4:2:2 one scene worse, hence opt-in.
+  // B 0.0143 → 0.0168 and at 4:2:2 one scene worse, hence opt-in (the default is replace_chroma_biased_fits).
   ChromaSubsampling sharp_chroma;
   ChromaDetailOptions chroma_detail;
   // With sharp_chroma subsampled: R and B are fitted both ways and keep the chroma model only where its fit lies
   // above the pointwise one (chroma_subsampling.hpp ChromaModelChoice; measured: docs/RESULTS.md#chroma-choice).
   ChromaModelChoice chroma_choice;
-  // The sharp shot's chroma sampling as its file stores it, whatever the model (for the verdict: R and B fitted by
-  // the pointwise model from a subsampled sharp shot are "weak"). 1×1: full resolution or not a JPEG.
+  // The sharp shot's chroma sampling as its file stores it, whatever the model (for the chroma check and the verdict
+  // of R and B fitted by the pointwise model from a subsampled sharp shot). 1×1: full resolution or not a JPEG.
   ChromaSubsampling sharp_stored_chroma;
+  // The chroma check (after the final fits, each pointwise R or B of a subsampled sharp shot fitted once more where
+  // that shot's chroma is flat): true replaces the reported fit by that one where the two differ in shape by more
+  // than verdict.max_chroma_shape_difference and it lies above (the sign of the bias the lost chroma puts in,
+  // ChromaModelChoice) — unless an effect's extended model supplied φ. false: the check only informs the verdict.
+  // Measured (docs/RESULTS.md#chroma-replace): 27 semi-real pairs at r = 1 B 0.0717 → 0.0298, r = 4 and 8 unchanged.
+  bool replace_chroma_biased_fits = true;
+  // ... provided the flat-chroma fit fixes the curve's exponent by itself: its CrfFitResult::ambiguity_rise (the
+  // data energy's relative rise at φ^γ, r^γ, γ = 1 ± 0.1) at least this. Leaving out the edges whose chroma varies
+  // can leave too little to do so; that fit then drifts along φ^γ (measured: 4:2:2 pairs whose flat fit rose
+  // 0.030–0.055 came out 1.1–4× worse than their pointwise fit). Chosen on the IMG_2601 scene of `bench pairs`
+  // (worse replacements ≤ 0.055, better ones ≥ 0.105), reported on its two other scenes
+  // (docs/RESULTS.md#chroma-replace).
+  double chroma_replacement_min_ambiguity_rise = 0.075;
   int max_fit_side = 1024;           // the fit sees at most this window around the best tile (speed on 24 MP)
   CurveBandOptions band;             // the pointwise band of φ per channel (curve_band.hpp); replicates = 0: none
   EffectOptions effects;             // residual diagnostics after the fit (effects.hpp); detected → φ from the extended model
