@@ -2,6 +2,7 @@
 // both shots cut to it per channel, and the fit of one channel on it.
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <exception>
 #include <map>
 #include <optional>
@@ -222,9 +223,22 @@ void checkPointwiseChroma(PairCalibrationState& state) {
     // exponent by itself: the flat-chroma fit is reported, as --chroma-model auto would keep it; its bound goes with
     // it (bands, joint fits).
     PairCalibrationState::ChromaCheck& c = check[i];
-    c.replaced = state.options.replace_chroma_biased_fits && !result.effects.refit_adopted && flat_fits[i] &&
-                 c.shape_difference > state.options.verdict.max_chroma_shape_difference && c.scale > 1 &&
-                 c.ambiguity_rise >= state.options.chroma_replacement_min_ambiguity_rise;
+    const double min_rise = state.options.chroma_replacement_min_ambiguity_rise;
+    const bool biased = flat_fits[i] && c.shape_difference > state.options.verdict.max_chroma_shape_difference &&
+                        c.scale > 1;
+    if (biased && state.options.replace_chroma_biased_fits) {
+      if (result.effects.refit_adopted) {
+        c.not_replaced = "an effect's extended model supplied the reported phi, so that one is kept";
+      } else if (!(c.ambiguity_rise >= min_rise)) {
+        char why[200];
+        std::snprintf(why, sizeof why,
+                      "that fit does not fix the curve's exponent by itself (ambiguity rise %.3g < %.3g), so it is "
+                      "not reported instead",
+                      c.ambiguity_rise, min_rise);
+        c.not_replaced = why;
+      }
+      c.replaced = c.not_replaced.empty();
+    }
     if (c.replaced) {
       result.fits[names[i]] = std::move(*flat_fits[i]);
       result.chroma_model_channels.push_back(names[i]);

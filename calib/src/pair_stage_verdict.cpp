@@ -7,7 +7,6 @@
 #include <algorithm>
 #include <cstdio>
 #include <string>
-#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -188,16 +187,7 @@ void computeVerdict(PairCalibrationState& state) {
       e.chroma_check_pixels_left_out = c.pixels_left_out;
       e.chroma_check_scale = c.scale;
       e.chroma_check_replaced = c.replaced;
-      const double min_rise = options.chroma_replacement_min_ambiguity_rise;
-      if (!c.replaced && options.replace_chroma_biased_fits && c.scale > 1 &&
-          c.shape_difference > options.verdict.max_chroma_shape_difference && c.ambiguity_rise < min_rise) {
-        char text[200];
-        std::snprintf(text, sizeof text,
-                      "that fit does not fix the curve's exponent by itself (ambiguity rise %.3g < %.3g), so it is "
-                      "not reported instead",
-                      c.ambiguity_rise, min_rise);
-        e.chroma_check_not_replaced = text;
-      }
+      e.chroma_check_not_replaced = c.not_replaced;
     }
     evidence.push_back(e);
   }

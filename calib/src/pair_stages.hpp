@@ -92,6 +92,7 @@ struct PairCalibrationState {
     double scale = 0;              // best factor a: flat-chroma fit ≈ a · reported fit (0: not measured)
     double ambiguity_rise = 0;     // the flat-chroma fit's CrfFitResult::ambiguity_rise
     bool replaced = false;         // the flat-chroma fit is reported (options.replace_chroma_biased_fits)
+    std::string not_replaced;      // why a flat-chroma fit beyond the difference and above was not (verdict text)
   };
   std::map<std::string, ChromaCheck> chroma_check;
   // The pointwise fits of the channels that kept the chroma model (fitChannels' choice): the effect diagnostics see

@@ -141,7 +141,8 @@ struct PairCalibrationResult {
   std::vector<TileKernel> tile_kernels;  // the last kernel round's, per tile with usable edges, when more than one tile
   KernelDisagreement disagreement;
   std::vector<std::string> channels;     // "R","G","B" or "G"
-  // Channels fitted only where the sharp shot's subsampled chroma is flat (options.sharp_chroma; issue 20)
+  // Channels fitted only where the sharp shot's subsampled chroma is flat (options.sharp_chroma, or reported so by the
+  // chroma check: options.replace_chroma_biased_fits; issue 20)
   std::vector<std::string> chroma_model_channels;
   // With options.chroma_choice: per subsampled channel the best scale of the chroma model's fit against the pointwise
   // one over their common range (kept the chroma model iff above chroma_choice.min_relative_scale). Empty: no choice.
