@@ -1,7 +1,6 @@
 // crfcal calibrate's verdict per channel (channel_verdict.hpp) in report.json and on the terminal, and --strict's
 // exit code 4 on the bundled demo pair (samples/pairs, r ≈ 1): ok as measured; unreliable when r is fixed at 4,
 // which the shots' brightness ratio (≈ 1) contradicts.
-#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -10,6 +9,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "crfcal/response_model.hpp"
 #include "test_support.hpp"
 
 namespace crfcal {
@@ -59,14 +59,8 @@ TEST(VerdictCli, StrictExitsFourWhenAChannelIsUnreliableAndStillWrites) {
 // φ RMSE over [0, 1] of a report's channel against the demo pair's truth (one curve for all channels).
 double demoPhiRmse(const nlohmann::json& report, const std::string& channel) {
   std::ifstream in(test::samples() / "pairs" / "truth.json");
-  const std::vector<double> truth = nlohmann::json::parse(in).at("inverse_crf").get<std::vector<double>>();
-  const std::vector<double> phi = report.at("inverse_crf").at(channel).get<std::vector<double>>();
-  double sum = 0;
-  for (std::size_t i = 0; i < phi.size(); ++i) {
-    const double t = truth.at(i * (truth.size() - 1) / (phi.size() - 1));
-    sum += (phi[i] - t) * (phi[i] - t);
-  }
-  return std::sqrt(sum / phi.size());
+  return curveRmse(report.at("inverse_crf").at(channel).get<std::vector<double>>(),
+                   nlohmann::json::parse(in).at("inverse_crf").get<std::vector<double>>());
 }
 
 // The demo pair's JPEGs are 4:2:0. The chroma check fits R and B once more where the sharp shot's chroma is flat.
