@@ -377,18 +377,19 @@ struct PairsRun {
       options.fit.noise_sigma_per_level = intensityNoisePerLevel(
           realExposure(*noise_camera, args.blurred_iso, c.ratio, args.sharp_noise_scale).noise_sharp.green, c.truth);
     const PairCalibrationResult r = calibratePair(loaded.sharp.image, loaded.blurred.image, options);
+    const std::vector<double> truth_phi = sampleInverse(c.truth);  // φ_true on the curves' 1024 samples
     CaseScores s;
     s.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    s.rmse = curveRmse(r.fits.at("G").inverse_crf, sampleInverse(c.truth));
+    s.rmse = curveRmse(r.fits.at("G").inverse_crf, truth_phi);
     if (r.fits.count("R") && r.fits.count("B")) {
-      s.rmse_r = curveRmse(r.fits.at("R").inverse_crf, sampleInverse(c.truth));
-      s.rmse_b = curveRmse(r.fits.at("B").inverse_crf, sampleInverse(c.truth));
+      s.rmse_r = curveRmse(r.fits.at("R").inverse_crf, truth_phi);
+      s.rmse_b = curveRmse(r.fits.at("B").inverse_crf, truth_phi);
       row.update({{"phi_rmse_R", s.rmse_r}, {"phi_rmse_B", s.rmse_b}});
       // Shape over each channel's own covered range after its best common scale, as for G below.
       for (const char* name : {"R", "B"}) {
         std::optional<IntensityRange> covered;
         if (r.covered_range.count(name)) covered = r.covered_range.at(name);
-        const ChannelComparison shape = compareCurves(sampleInverse(c.truth), r.fits.at(name).inverse_crf, {}, covered);
+        const ChannelComparison shape = compareCurves(truth_phi, r.fits.at(name).inverse_crf, {}, covered);
         (name[0] == 'R' ? s.shape_r : s.shape_b) = shape.rmse_covered_aligned;
         const std::string channel = name;
         row.update({{"phi_shape_rmse_" + channel + "_covered", shape.rmse_covered_aligned},
@@ -401,7 +402,7 @@ struct PairsRun {
     }
     s.rr = r.fits.at("G").ratio / c.ratio;
     // φ before a detected effect's extended model replaced it (effects.hpp), for comparison.
-    s.base = r.base_fits.count("G") ? curveRmse(r.base_fits.at("G").inverse_crf, sampleInverse(c.truth)) : s.rmse;
+    s.base = r.base_fits.count("G") ? curveRmse(r.base_fits.at("G").inverse_crf, truth_phi) : s.rmse;
     s.kerr = kernelShapeError(r.kernel.kernel, c.kernel);
     s.cerr = cornerError(r.registration.homography, pair.homography, photo_size,
                          kernelCentroid(c.kernel) - r.kernel.centroid);
@@ -414,12 +415,12 @@ struct PairsRun {
     // Shape over the covered range after the best common scale: φ → bφ leaves Eq. 4 unchanged.
     std::optional<IntensityRange> covered;
     if (r.covered_range.count("G")) covered = r.covered_range.at("G");
-    s.shape = compareCurves(sampleInverse(c.truth), r.fits.at("G").inverse_crf, {}, covered);
+    s.shape = compareCurves(truth_phi, r.fits.at("G").inverse_crf, {}, covered);
     row.update({{"phi_shape_rmse_G_covered", s.shape.rmse_covered_aligned}, {"phi_scale_G_covered", s.shape.scale_covered},
                 {"covered_G", {s.shape.covered.first, s.shape.covered.second}}});
     if (r.bands.count("G")) {
       const CurveBand& band = r.bands.at("G");
-      s.band = scoreBand(band, r.fits.at("G").inverse_crf, sampleInverse(c.truth));
+      s.band = scoreBand(band, r.fits.at("G").inverse_crf, truth_phi);
       s.band_seconds = band.seconds;
       row["band_G"] = {{"inside", s.band->inside}, {"inside_hits", s.band->inside_hits}, {"above", s.band->above},
                        {"above_hits", s.band->above_hits}, {"above_far", s.band->above_far},

@@ -204,12 +204,12 @@ void checkPointwiseChroma(PairCalibrationState& state) {
     CrfFitOptions fo = state.fit_options;
     fo.sharp_error_bound = bound->second;
     fo.progress = nullptr;
-    const CrfFitResult flat = fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
+    CrfFitResult flat = fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
     const CrfFitResult& reported = result.fits.at(name);
     const ChannelComparison c = compareCurves(flat.inverse_crf, reported.inverse_crf, covered(flat), covered(reported));
     check[static_cast<std::size_t>(i)] = {c.rmse_covered_aligned, flat.pixels.unmodelled, c.scale_covered,
                                           flat.ambiguity_rise};
-    flat_fits[static_cast<std::size_t>(i)] = flat;
+    flat_fits[static_cast<std::size_t>(i)] = std::move(flat);
   });
   for (std::size_t i = 0; i < names.size(); ++i) {
     if (errors[i]) {
