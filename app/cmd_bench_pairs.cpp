@@ -394,7 +394,8 @@ struct PairsRun {
         const std::string channel = name;
         row.update({{"phi_shape_rmse_" + channel + "_covered", shape.rmse_covered_aligned},
                     {"phi_scale_" + channel + "_covered", shape.scale_covered},
-                    {"covered_" + channel, {shape.covered.first, shape.covered.second}}});
+                    {"covered_" + channel, {shape.covered.first, shape.covered.second}},
+                    {"inverse_crf_" + channel, r.fits.at(name).inverse_crf}});
         if (r.verdicts.count(name))
           row.update({{"verdict_" + channel, toString(r.verdicts.at(name).level)},
                       {"verdict_reasons_" + channel, r.verdicts.at(name).reasons}});

@@ -3,7 +3,8 @@
 //     one truth per shot, against the camera's bundled curve samples/camera_curves/<Camera>.csv (fitted by
 //     `crfcal curves` from grey-patch medians of all 8 shots: same camera, independent method). Green channel φ
 //     RMSE over the range both cover, plain and scale-aligned, and the per-pixel residual with and without the
-//     colour-mixing row (raw_truth.hpp step 5).
+//     colour-mixing row (raw_truth.hpp step 5). With --channels rgb also R and B, and how far each lies from G in
+//     shape over the range both cover (the channels' tone curves: one curve for all three, up to a factor, or not).
 //  2. raw_samples (../shared/data/raw_samples): every RAW LibRaw decodes against the preview the camera embedded in
 //     the same file (io::readRawThumbnail): what happens, per file.
 // Data from --data, $CRFCAL_SHARED_DATA or ../shared/data; parts whose folder is absent are skipped.
@@ -40,10 +41,53 @@ struct RawTruthBenchArgs {
   std::string data;
   std::string curves;  // directory of <Camera>.csv (default samples/camera_curves)
   bool per_shot = false;
+  std::string channels = "g";  // g, or rgb: every channel's truth, and R and B against G in shape
   std::string json;
   bool quiet = false;
   bool force = false;  // --json/-o over files crfcal did not write (never deletes them)
 };
+
+// One camera's numbers over its shots.
+struct CameraRow {
+  std::string camera;
+  int shots = 0, failed = 0;
+  std::vector<double> aligned, covered, pixel, pointwise, explained;
+  std::vector<double> red_vs_green, blue_vs_green;  // --channels rgb: shape RMSE against G, each shot
+};
+
+double maxOf(const std::vector<double>& v) {
+  return v.empty() ? std::nan("") : *std::max_element(v.begin(), v.end());
+}
+
+// Every channel's truth into the shot's JSON entry, and R's and B's shape RMSE against G over the range both truths
+// cover, after their best common factor (a white balance scales a channel: only the shape compares).
+void recordChannelAgreement(const RawTruthResult& truth, nlohmann::json& entry, std::vector<double>& red_vs_green,
+                            std::vector<double>& blue_vs_green) {
+  const auto curves = truth.inverse();
+  const auto covered = truth.covered();
+  for (const auto& c : truth.channels)
+    entry["channels"][c.channel] = {{"covered", {c.fit.covered_range.first, c.fit.covered_range.second}},
+                                    {"inverse_crf", c.fit.inverse}};
+  for (const char* name : {"R", "B"}) {
+    const ChannelComparison shape =
+        compareCurves(curves.at("G"), curves.at(name), covered.at("G"), covered.at(name));
+    entry["channels"][name]["shape_rmse_vs_G"] = shape.rmse_covered_aligned;
+    (name[0] == 'R' ? red_vs_green : blue_vs_green).push_back(shape.rmse_covered_aligned);
+  }
+}
+
+void printChannelAgreement(const std::vector<CameraRow>& rows) {
+  std::printf("\nper camera (--channels rgb; medians over shots, [max]): R and B against G in shape over the range "
+              "both truths cover, after the best common factor\n| camera | R vs G | B vs G |\n|---|---|---|\n");
+  std::vector<double> all;
+  for (const auto& r : rows) {
+    std::printf("| %s | %.4f [%.4f] | %.4f [%.4f] |\n", r.camera.c_str(), median(r.red_vs_green), maxOf(r.red_vs_green),
+                median(r.blue_vs_green), maxOf(r.blue_vs_green));
+    all.insert(all.end(), r.red_vs_green.begin(), r.red_vs_green.end());
+    all.insert(all.end(), r.blue_vs_green.begin(), r.blue_vs_green.end());
+  }
+  std::printf("all shots, R and B: median %.4f, max %.4f\n", median(all), maxOf(all));
+}
 
 nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root, Progress& progress) {
   const fs::path curves = args.curves.empty() ? io::samplesDirectory() / "camera_curves" : fs::path(args.curves);
@@ -54,16 +98,11 @@ nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root
   if (args.per_shot)
     std::printf("| camera | shot | covered | K | R^2 | pixel rmse (mix / pointwise) | RMSE covered | aligned | s |\n"
                 "|---|---|---|---|---|---|---|---|---|\n");
-  struct Row {
-    std::string camera;
-    int shots = 0, failed = 0;
-    std::vector<double> aligned, covered, pixel, pointwise, explained;
-  };
-  std::vector<Row> rows;
+  std::vector<CameraRow> rows;
   int done = 0, total = 0;
   for (const auto& camera : cameras) total += static_cast<int>(io::listMiddleburyShots(root / camera).size());
   for (const auto& camera : cameras) {
-    Row row;
+    CameraRow row;
     row.camera = camera;
     const fs::path table_path = curves / (camera + ".csv");
     std::vector<double> table;
@@ -79,24 +118,27 @@ nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root
       try {
         const cv::Mat jpeg = io::readImage(shot.jpg), linear = io::readImage(shot.raw);
         RawTruthOptions options;
-        options.channels = {"G"};
+        if (args.channels == "rgb") options.channels = {"R", "G", "B"};
+        else options.channels = {"G"};
         const auto t0 = Clock::now();
         const RawTruthResult truth = computeRawTruth(jpeg, linear, options);
         const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
         options.colour_matrix = false;
         const RawTruthResult plain = computeRawTruth(jpeg, linear, options);
-        const RawTruthChannel& g = truth.channels[0];
+        const std::size_t green = args.channels == "rgb" ? 1 : 0;
+        const RawTruthChannel& g = truth.channels[green];
         entry.update({{"covered", {g.fit.covered_range.first, g.fit.covered_range.second}},
                       {"terms", g.fit.terms},
                       {"explained", g.explained},
                       {"pixel_rmse", g.pixel_rmse},
-                      {"pixel_rmse_pointwise", plain.channels[0].pixel_rmse},
+                      {"pixel_rmse_pointwise", plain.channels[green].pixel_rmse},
                       {"mix", g.mix},
                       {"pixels", g.pixels},
                       {"seconds", seconds},
                       {"inverse_crf", g.fit.inverse}});
+        if (args.channels == "rgb") recordChannelAgreement(truth, entry, row.red_vs_green, row.blue_vs_green);
         row.pixel.push_back(g.pixel_rmse);
-        row.pointwise.push_back(plain.channels[0].pixel_rmse);
+        row.pointwise.push_back(plain.channels[green].pixel_rmse);
         row.explained.push_back(g.explained);
         double aligned = std::nan(""), covered = std::nan(""), scale = std::nan("");
         if (!table.empty()) {
@@ -115,7 +157,7 @@ nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root
         if (args.per_shot)
           std::printf("| %s | %s | [%.3f, %.3f] | %d | %.4f | %.4f / %.4f | %.4f | %.4f | %.3f |\n", camera.c_str(),
                       shot.name.c_str(), g.fit.covered_range.first, g.fit.covered_range.second, g.fit.terms,
-                      g.explained, g.pixel_rmse, plain.channels[0].pixel_rmse, covered, aligned, scale);
+                      g.explained, g.pixel_rmse, plain.channels[green].pixel_rmse, covered, aligned, scale);
       } catch (const Error& e) {
         ++row.failed;
         entry["error"] = e.what();
@@ -130,7 +172,6 @@ nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root
               "RMSE covered, scale-aligned |\n|---|---|---|---|---|---|---|\n");
   std::vector<double> all_aligned, all_covered;
   for (const auto& r : rows) {
-    auto maxOf = [](const std::vector<double>& v) { return v.empty() ? std::nan("") : *std::max_element(v.begin(), v.end()); };
     std::printf("| %s | %d (%d) | %.4f | %.4f | %.4f | %.4f [%.4f] | %.4f [%.4f] |\n", r.camera.c_str(), r.shots,
                 r.failed, median(r.explained), median(r.pixel), median(r.pointwise), median(r.covered),
                 maxOf(r.covered), median(r.aligned), maxOf(r.aligned));
@@ -140,6 +181,7 @@ nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root
   std::printf("all shots: RMSE covered median %.4f, scale-aligned median %.4f (max %.4f)\n", median(all_covered),
               median(all_aligned),
               all_aligned.empty() ? std::nan("") : *std::max_element(all_aligned.begin(), all_aligned.end()));
+  if (args.channels == "rgb") printChannelAgreement(rows);
   return out;
 }
 
@@ -217,6 +259,10 @@ const BenchRegistration registration(
       command.add_option("--data", args->data, "Shared data directory (default $CRFCAL_SHARED_DATA or ../shared/data)");
       command.add_option("--curves", args->curves, "Directory of camera curve tables (default samples/camera_curves)");
       command.add_flag("--per-shot", args->per_shot, "Print one row per shot");
+      command.add_option("--channels", args->channels,
+                         "Middlebury: g (the green truth only) or rgb (every channel's truth, and R and B against G in "
+                         "shape)")
+          ->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--json", args->json, "Write all numbers to this JSON file (atomic)");
       command.add_flag("--force", args->force, kForceHelp);
       command.add_flag("-q,--quiet", args->quiet, "No progress output");
