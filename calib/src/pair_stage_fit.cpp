@@ -207,8 +207,11 @@ void checkPointwiseChroma(PairCalibrationState& state) {
     CrfFitResult flat = fitInverseCrf(state.window_sharp.at(name), state.window_blurred.at(name), kernel, fo);
     const CrfFitResult& reported = result.fits.at(name);
     const ChannelComparison c = compareCurves(flat.inverse_crf, reported.inverse_crf, covered(flat), covered(reported));
-    check[static_cast<std::size_t>(i)] = {c.rmse_covered_aligned, flat.pixels.unmodelled, c.scale_covered,
-                                          flat.ambiguity_rise};
+    PairCalibrationState::ChromaCheck& measured = check[static_cast<std::size_t>(i)];
+    measured.shape_difference = c.rmse_covered_aligned;
+    measured.pixels_left_out = flat.pixels.unmodelled;
+    measured.scale = c.scale_covered;
+    measured.ambiguity_rise = flat.ambiguity_rise;
     flat_fits[static_cast<std::size_t>(i)] = std::move(flat);
   });
   for (std::size_t i = 0; i < names.size(); ++i) {
