@@ -123,22 +123,23 @@ nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root
         const auto t0 = Clock::now();
         const RawTruthResult truth = computeRawTruth(jpeg, linear, options);
         const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+        options.channels = {"G"};  // the pointwise comparison is of G alone
         options.colour_matrix = false;
         const RawTruthResult plain = computeRawTruth(jpeg, linear, options);
-        const std::size_t green = args.channels == "rgb" ? 1 : 0;
-        const RawTruthChannel& g = truth.channels[green];
+        const RawTruthChannel& g = *std::find_if(truth.channels.begin(), truth.channels.end(),
+                                                 [](const RawTruthChannel& c) { return c.channel == "G"; });
         entry.update({{"covered", {g.fit.covered_range.first, g.fit.covered_range.second}},
                       {"terms", g.fit.terms},
                       {"explained", g.explained},
                       {"pixel_rmse", g.pixel_rmse},
-                      {"pixel_rmse_pointwise", plain.channels[green].pixel_rmse},
+                      {"pixel_rmse_pointwise", plain.channels[0].pixel_rmse},
                       {"mix", g.mix},
                       {"pixels", g.pixels},
                       {"seconds", seconds},
                       {"inverse_crf", g.fit.inverse}});
         if (args.channels == "rgb") recordChannelAgreement(truth, entry, row.red_vs_green, row.blue_vs_green);
         row.pixel.push_back(g.pixel_rmse);
-        row.pointwise.push_back(plain.channels[green].pixel_rmse);
+        row.pointwise.push_back(plain.channels[0].pixel_rmse);
         row.explained.push_back(g.explained);
         double aligned = std::nan(""), covered = std::nan(""), scale = std::nan("");
         if (!table.empty()) {
@@ -157,7 +158,7 @@ nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root
         if (args.per_shot)
           std::printf("| %s | %s | [%.3f, %.3f] | %d | %.4f | %.4f / %.4f | %.4f | %.4f | %.3f |\n", camera.c_str(),
                       shot.name.c_str(), g.fit.covered_range.first, g.fit.covered_range.second, g.fit.terms,
-                      g.explained, g.pixel_rmse, plain.channels[green].pixel_rmse, covered, aligned, scale);
+                      g.explained, g.pixel_rmse, plain.channels[0].pixel_rmse, covered, aligned, scale);
       } catch (const Error& e) {
         ++row.failed;
         entry["error"] = e.what();
