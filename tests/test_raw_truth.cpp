@@ -177,7 +177,8 @@ TEST(RawTruth, KodakRawAgainstItsEmbeddedPreview) {
 // x = 0.99) they part (0.005–0.021), docs/RESULTS.md#chroma-shared-tone-curve.
 TEST(RawTruthBenchCli, EveryChannelsTruthIsWrittenWithItsShapeAgainstGreen) {
   test::TempDir dir;
-  const std::string bench = test::crfcalBinary().string() + " bench raw-truth -q --data " + test::quote(test::samples());
+  const std::string bench =
+      test::crfcalBinary().string() + " bench raw-truth -q --data " + test::quote(test::samples());
   const auto rgb = test::run(bench + " --channels rgb --json " + test::quote(dir / "rgb.json"));
   ASSERT_EQ(rgb.exit_code, 0) << rgb.output;
   EXPECT_NE(rgb.output.find("R and B against G in shape"), std::string::npos) << rgb.output;

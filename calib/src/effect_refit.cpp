@@ -44,7 +44,8 @@ JointFitPair tilePair(const EffectSearch& search, const cv::Rect& t, const cv::M
                       const CrfFitOptions& fo) {
   const cv::Point2d tc(t.x + t.width / 2.0, t.y + t.height / 2.0);
   JointFitPair tile;
-  tile.kernel = kernelAt(search.blur, (tc.x - search.centre.x) / search.radius, (tc.y - search.centre.y) / search.radius);
+  tile.kernel = kernelAt(search.blur, (tc.x - search.centre.x) / search.radius,
+                         (tc.y - search.centre.y) / search.radius);
   const int m = std::max(tile.kernel.rows, tile.kernel.cols) / 2 + 1;
   const cv::Rect big = cv::Rect(t.x - m, t.y - m, t.width + 2 * m, t.height + 2 * m) &
                        cv::Rect(0, 0, search.size.width, search.size.height);
