@@ -107,6 +107,11 @@ struct CaseResult {
   bool exact = false;        // the right name and no other
   double rmse = 0, rmse_base = 0, rmse_clean = 0;
   bool phi_ok = false;
+  // φ_G's shape where both the pair and its clean twin have data (their covered ranges' overlap, below a planted
+  // plateau): RMSE after the best common factor. φ → bφ leaves Eq. 4 unchanged, so the RMSE over [0, 1] above also
+  // carries the scale that φ(1) = 1 takes from the extrapolated top.
+  double shape = 0, shape_base = 0, shape_clean = 0;
+  bool shape_ok = false;
   double seconds = 0;
   std::string error;
 };
@@ -259,6 +264,14 @@ void writeCasePair(const std::filesystem::path& dir, const std::string& prefix, 
   io::writeTextFile(dir / "truth.json", truth.dump(1) + "\n");
 }
 
+// G's covered range, below a planted plateau (above it any φ is an extrapolation); [0, plateau] without one.
+IntensityRange coveredBelow(const PairCalibrationResult& result, double plateau) {
+  IntensityRange range{0.0, 1.0};
+  if (result.covered_range.count("G")) range = result.covered_range.at("G");
+  range.second = std::min(range.second, plateau);
+  return range;
+}
+
 CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::string& effect, int seed, double factor,
                    bool effects_on, PairsOutput* pairs_out = nullptr) {
   Setup s = makeSetup(src, effect, seed, factor, args.form == "held-out" ? "held_out" : "detector", args.ratio,
@@ -311,9 +324,17 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
     if (isClean(effect)) r.hit = r.detected.empty();
     r.exact = r.hit && r.detected.size() == planted_names.size();
     r.rmse = rmse(result.fits.at("G").inverse_crf);
-    r.rmse_base = rmse((result.base_fits.empty() ? result.fits : result.base_fits).at("G").inverse_crf);
+    const auto& base_phi = (result.base_fits.empty() ? result.fits : result.base_fits).at("G").inverse_crf;
+    r.rmse_base = rmse(base_phi);
+    IntensityRange measured = coveredBelow(result, planted.plateau_intensity);
+    auto shapes = [&] {
+      r.shape = shapeError(truth, result.fits.at("G").inverse_crf, measured);
+      r.shape_base = shapeError(truth, base_phi, measured);
+    };
     if (isClean(effect)) {
       r.rmse_clean = r.rmse_base;
+      shapes();
+      r.shape_clean = r.shape_base;
     } else {
       PlantingOptions clean = s.planting;
       clean.effect = "none";
@@ -323,9 +344,15 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
       if (planted.plateau_intensity < 1)
         s.calibration.fit.saturation_high = std::min(s.calibration.fit.saturation_high, planted.plateau_intensity - 0.5 / 255);
       const PairCalibrationResult twin = calibrate(clean, "twin_");
-      r.rmse_clean = rmse((twin.base_fits.empty() ? twin.fits : twin.base_fits).at("G").inverse_crf);
+      const auto& twin_phi = (twin.base_fits.empty() ? twin.fits : twin.base_fits).at("G").inverse_crf;
+      r.rmse_clean = rmse(twin_phi);
+      const IntensityRange twin_measured = coveredBelow(twin, planted.plateau_intensity);
+      measured = {std::max(measured.first, twin_measured.first), std::min(measured.second, twin_measured.second)};
+      shapes();
+      r.shape_clean = shapeError(truth, twin_phi, measured);
     }
     r.phi_ok = r.rmse <= r.rmse_clean + kPhiTolerance;
+    r.shape_ok = r.shape <= r.shape_clean + kPhiTolerance;
     if (args.verbose) std::fprintf(stderr, "%s\n", result.effects.summary().c_str());
     if (args.verbose)
       for (const auto& w : result.warnings) std::fprintf(stderr, "warning: %s\n", w.c_str());
@@ -454,9 +481,12 @@ int runEffects(const EffectsArgs& args) {
       for (const auto& d : r.detected) names += (names.empty() ? "" : ",") + d;
       {
         const std::lock_guard<std::mutex> lock(print);
-        std::fprintf(stderr, "%-24s seed %3d strength %.4g: detected [%s] %s rmse %.4f (base %.4f, clean twin %.4f) %.1f s%s\n",
+        std::fprintf(stderr,
+                     "%-24s seed %3d strength %.4g: detected [%s] %s rmse %.4f (base %.4f, clean twin %.4f), shape "
+                     "%.4f (base %.4f, twin %.4f) %.1f s%s\n",
                      effect.c_str(), seed, r.strength, names.c_str(), r.exact ? "OK" : "WRONG", r.rmse, r.rmse_base,
-                     r.rmse_clean, r.seconds, r.error.empty() ? "" : (" error: " + r.error).c_str());
+                     r.rmse_clean, r.shape, r.shape_base, r.shape_clean, r.seconds,
+                     r.error.empty() ? "" : (" error: " + r.error).c_str());
       }
       results[static_cast<std::size_t>(i)] = r;
     }
@@ -464,12 +494,13 @@ int runEffects(const EffectsArgs& args) {
   std::ostringstream table;
   if (src.noise_camera) table << "sharp shot: sensor noise of " << src.noise_camera->summary() << "\n\n";
   table << "| planted effect | strength range | cases | detected (right name) | exactly right (no other) | "
-           "false names | phi ok (<= twin + 0.005) | phi_G RMSE median: reported | base | clean twin | s/case |\n"
-           "|---|---|---|---|---|---|---|---|---|---|---|\n";
+           "false names | phi ok (<= twin + 0.005) | phi_G RMSE median: reported | base | clean twin | "
+           "shape ok (<= twin + 0.005) | phi_G shape median: reported | base | clean twin | s/case |\n"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   nlohmann::json json = nlohmann::json::array();
   for (const auto& effect : effects) {
-    int n = 0, hit = 0, exact = 0, others = 0, ok = 0, errors = 0;
-    std::vector<double> rm, rb, rc;
+    int n = 0, hit = 0, exact = 0, others = 0, ok = 0, shape_ok = 0, errors = 0;
+    std::vector<double> rm, rb, rc, sm, sb, sc;
     double secs = 0;
     for (const auto& r : results) {
       if (r.effect != effect) continue;
@@ -477,28 +508,36 @@ int runEffects(const EffectsArgs& args) {
       hit += r.hit;
       exact += r.exact;
       ok += r.phi_ok;
+      shape_ok += r.shape_ok;
       for (const auto& d : r.detected)
         if (!isPlanted(effect, d)) ++others;
       if (r.error.empty()) {
         rm.push_back(r.rmse);
         rb.push_back(r.rmse_base);
         rc.push_back(r.rmse_clean);
+        sm.push_back(r.shape);
+        sb.push_back(r.shape_base);
+        sc.push_back(r.shape_clean);
       } else {
         ++errors;
       }
       secs += r.seconds;
       json.push_back({{"effect", r.effect}, {"seed", r.seed}, {"strength", r.strength}, {"detected", r.detected},
                       {"hit", r.hit}, {"exact", r.exact}, {"phi_rmse", r.rmse}, {"phi_rmse_base", r.rmse_base},
-                      {"phi_rmse_clean_twin", r.rmse_clean}, {"phi_ok", r.phi_ok}, {"seconds", r.seconds},
+                      {"phi_rmse_clean_twin", r.rmse_clean}, {"phi_ok", r.phi_ok}, {"phi_shape", r.shape},
+                      {"phi_shape_base", r.shape_base}, {"phi_shape_clean_twin", r.shape_clean},
+                      {"shape_ok", r.shape_ok}, {"seconds", r.seconds},
                       {"error", r.error}});
     }
     char line[600];
     std::snprintf(line, sizeof line,
-                  "| %s | %s | %d%s | %d (%.0f %%) | %d (%.0f %%) | %d | %d (%.0f %%) | %.4f | %.4f | %.4f | %.1f |\n",
+                  "| %s | %s | %d%s | %d (%.0f %%) | %d (%.0f %%) | %d | %d (%.0f %%) | %.4f | %.4f | %.4f | "
+                  "%d (%.0f %%) | %.4f | %.4f | %.4f | %.1f |\n",
                   effect.c_str(), range(effect).c_str(), n,
                   errors ? (" (" + std::to_string(errors) + " failed)").c_str() : "", hit, 100.0 * hit / std::max(1, n),
                   exact, 100.0 * exact / std::max(1, n), others, ok, 100.0 * ok / std::max(1, n), median(rm),
-                  median(rb), median(rc), secs / std::max(1, n));
+                  median(rb), median(rc), shape_ok, 100.0 * shape_ok / std::max(1, n), median(sm), median(sb),
+                  median(sc), secs / std::max(1, n));
     table << line;
   }
   table << "\n('none' rows: 'detected' = no effect reported; 1 − that is the false-alarm rate. 'none (kernel "

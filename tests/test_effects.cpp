@@ -249,16 +249,19 @@ TEST(Effects, ChannelMixingIsFound) {
 }
 
 TEST(Effects, SpatiallyVaryingBlurIsFound) {
-  // The kernel must be estimated for this one (a given kernel is taken as the truth). Named alone, and adopting the
-  // per-tile refit does not make φ worse than ignoring the effect. (Within the clean twin's accuracy is not asserted
-  // here: since the irradiance-domain kernel rounds were weighted, the clean estimated-kernel twins improved — bench
-  // median 0.0286 → 0.0117 — and the per-tile refits did not follow; met in 10 of 20 bench pairs, docs/RESULTS.md#effects.)
+  // The kernel must be estimated for this one (a given kernel is taken as the truth). Named alone, and the reported
+  // φ (the per-tile refit where the refit guard adopts it; here the base fit, whose φ explains the held-back pixels
+  // better under the first-order kernel) is not worse than ignoring the effect. (Within the clean twin's accuracy is
+  // not asserted here: since the irradiance-domain kernel rounds were weighted, the clean estimated-kernel twins
+  // improved — bench median 0.0286 → 0.0117 — and the varying-blur fits did not follow; met in 14 of 20 bench pairs,
+  // docs/RESULTS.md#effects-blur-guard.)
   const Case c = runCase("spatially_varying_blur", {pairOfPhotos(2, 3), "OlympusE10", 1, 1.0, true}, 17);
   ASSERT_EQ(c.detected, std::vector<std::string>{"spatially_varying_blur"})
       << "detected " << names(c.detected) << "\n" << c.result.effects.summary();
   const auto truth = sampleInverse(TableModel{io::readCurveTable(samples() / "camera_curves" / "OlympusE10.csv")});
-  ASSERT_EQ(c.result.base_fits.count("G"), 1u) << c.result.effects.summary();
-  const double base = curveRmse(c.result.base_fits.at("G").inverse_crf, truth);
+  const auto& base_fits = c.result.base_fits.empty() ? c.result.fits : c.result.base_fits;  // empty: no refit kept
+  ASSERT_EQ(base_fits.count("G"), 1u) << c.result.effects.summary();
+  const double base = curveRmse(base_fits.at("G").inverse_crf, truth);
   EXPECT_LE(c.rmse, base + kPhiTolerance) << "reported phi RMSE " << c.rmse << " vs the base fit's " << base;
 }
 

@@ -340,6 +340,7 @@ struct BlurTest {
   Comparison cmp;
   double variation = 0;             // (‖K_x‖ + ‖K_y‖) / ‖K₀‖: relative kernel change from the centre to a corner
   cv::Mat K0, Kx, Ky;               // fitted on all samples (unnormalised: the scale carries r)
+  double heldout_error = 0;         // Σe² / n of the first-order model on the held-back rows
 };
 
 // The first-order kernel at a point: K₀ + u K_x + v K_y, non-negative, normalised.
@@ -450,6 +451,13 @@ const LevelEffect& channelMixingEffect();
 const ModelCheck& spatiallyVaryingBlurCheck();
 const ModelCheck& exposureRatioMismatchCheck();
 const ModelCheck& signalDependentNoiseCheck();
+
+// Held-out Σe² / n of the first-order kernel model around the given φ and r, φ held as given: (K₀, K_x, K_y) fitted
+// on one fold of the reported channel's samples and measured on the other, both ways, as the check tests it. The
+// refit guard compares a spatially varying blur's refitted φ with the base fit's by it (effect_refit_guard.cpp).
+// +∞ when the model cannot be fitted.
+double firstOrderBlurHeldoutError(const EffectSearch& search, const std::vector<Curve>& curves,
+                                  const std::vector<double>& ratios);
 
 // ---- attribution (effect_attribution.cpp) ---------------------------------------------------------------------------
 

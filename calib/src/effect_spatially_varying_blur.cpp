@@ -9,6 +9,7 @@
 #include <array>
 #include <cmath>
 #include <exception>
+#include <limits>
 
 #include "crfcal/kernel.hpp"
 #include "crfcal/kernel_estimation.hpp"
@@ -183,6 +184,7 @@ BlurTest spatialBlurTest(const Samples& s, const cv::Mat& g, const cv::Mat& K, c
   double A = 0;
   for (double v : block_sum) A += v * v;
   A = std::max(1.0, A / e2);
+  bt.heldout_error = (e2 - sum_d) / n;
   bt.cmp.gain = sum_d / total;
   bt.cmp.z = sum_d / (2 * std::sqrt(e2 / n * A * sum_delta2));
   const Eigen::VectorXd all = kd.solve(-1, 3 * m);
@@ -200,6 +202,16 @@ BlurTest spatialBlurTest(const Samples& s, const cv::Mat& g, const cv::Mat& K, c
   return bt;
 }
 
+constexpr int kMaxKernelRows = 15000;  // samples the kernel's least squares reads (a regular subsample)
+
+// φ(I) of the reported channel for the curve (debiased as p.debias says).
+cv::Mat phiOfSharp(const EffectSearch& search, const Curve& curve) {
+  const int gi = search.g_index;
+  std::vector<double> f = onLevels(curve.phi, search.p.levels[gi]);
+  if (!search.p.debias[gi].identity()) f = search.p.debias[gi].apply(f);
+  return applyTable(search.p.I[gi], f);
+}
+
 void run(EffectSearch& search) {
   const EffectInputs& in = search.in;
   const EffectOptions& options = search.options;
@@ -209,13 +221,8 @@ void run(EffectSearch& search) {
     return;
   }
   const int gi = search.g_index;
-  const cv::Mat g = [&] {  // φ(I) of the reported channel (p.debias), around the selected model's φ
-    std::vector<double> f = onLevels(search.curves[gi].phi, search.p.levels[gi]);
-    if (!search.p.debias[gi].identity()) f = search.p.debias[gi].apply(f);
-    return applyTable(search.p.I[gi], f);
-  }();
-  search.blur = spatialBlurTest(search.problem.samples()[gi], g, search.K, search.centre, search.radius,
-                                search.blocks, options.min_derivative, 15000);
+  search.blur = spatialBlurTest(search.problem.samples()[gi], phiOfSharp(search, search.curves[gi]), search.K,
+                                search.centre, search.radius, search.blocks, options.min_derivative, kMaxKernelRows);
   const BlurTest& blur = search.blur;
   if (!blur.ok) {
     e.detail = blur.problem;
@@ -233,6 +240,17 @@ void run(EffectSearch& search) {
 }
 
 }  // namespace
+
+double firstOrderBlurHeldoutError(const EffectSearch& search, const std::vector<Curve>& curves,
+                                  const std::vector<double>& ratios) {
+  EffectOptions phi_as_given = search.options;
+  phi_as_given.phi_terms = 0;
+  const int gi = search.g_index;
+  const std::vector<Samples> samples = collect(search.p, curves, ratios, search.K, search.layout, phi_as_given);
+  const BlurTest bt = spatialBlurTest(samples[gi], phiOfSharp(search, curves[gi]), search.K, search.centre,
+                                      search.radius, search.blocks, search.options.min_derivative, kMaxKernelRows);
+  return bt.ok ? bt.heldout_error : std::numeric_limits<double>::infinity();
+}
 
 const ModelCheck& spatiallyVaryingBlurCheck() {
   static const ModelCheck check{"spatially_varying_blur", run};
