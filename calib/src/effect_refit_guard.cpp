@@ -138,7 +138,7 @@ std::string implausibility(const EffectSearch& search) {
 }
 
 // Tests 2 and 3 (above) after an earlier test's `reason` (then only test 2's numbers are recorded); empty when the
-// refit passes. A spatially varying blur's refit is fitted per tile with the first-order kernel, which the residual
+// refit passes. A spatially varying blur's refit is fitted per tile, each with its own kernel, which the residual
 // problem (one kernel) cannot hold: alone, the refitted φ and the base fit's are judged under that first-order model
 // (firstOrderBlurHeldoutError; before, such a refit was adopted unjudged: docs/RESULTS.md#effects-blur-guard); beside
 // level effects, which the first-order kernel test does not carry, only the plausibility checks apply.

@@ -65,7 +65,7 @@ std::string EffectReport::summary() const {
       s << buffer;
     }
   }
-  // The base fit's φ under the extended model (guard test 3; 0 when not compared: a per-tile refit).
+  // The base fit's φ under the extended model (guard test 3; 0 when not compared: an earlier test rejected the refit).
   char same_model[120] = "";
   if (heldout_error_base_fit_selected_model > 0)
     std::snprintf(same_model, sizeof same_model, ", %.3g with the base fit's phi under the extended model",

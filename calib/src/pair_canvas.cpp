@@ -2,29 +2,12 @@
 // denoised for the kernel estimation.
 #include <algorithm>
 
-#include <opencv2/imgproc.hpp>
 
-#include "crfcal/noise_estimation.hpp"
 #include "image_units.hpp"
+#include "irradiance_kernel_inputs.hpp"
 #include "pair_stages.hpp"
 
 namespace crfcal::detail {
-namespace {
-
-// The sharp image is the noisy (high-ISO) one; noise in ∂I biases the gradient-domain kernel regression
-// (errors in variables: the kernel shrinks and spreads). As in [27], it is denoised first — an edge-preserving
-// bilateral filter scaled to the estimated noise level — for kernel estimation only (the φ fit uses the raw I).
-cv::Mat denoiseForKernel(const cv::Mat& image) {
-  const double sigma = estimateNoiseSigma(image).sigma;
-  if (!(sigma > 0.002)) return image;
-  cv::Mat f, out;
-  image.convertTo(f, CV_32F);
-  cv::bilateralFilter(f, out, 7, static_cast<float>(std::max(3 * sigma, 0.02)), 2.0);
-  out.convertTo(out, CV_64F);
-  return out;
-}
-
-}  // namespace
 
 Canvas makeCanvas(const cv::Mat& sharp8, const cv::Mat& blurred8, const cv::Mat& usable, const std::vector<Tile>& tiles,
                   int margin) {

@@ -34,6 +34,8 @@ void diagnoseResidualEffects(PairCalibrationState& state) {
   ei.valid = state.overlap(window);
   ei.fit = fit_options;
   ei.kernel_options = options.kernel;
+  ei.kernel_options.lambda = options.irradiance_kernel_lambda;  // the tile kernels are irradiance-domain estimates
+  ei.weighted_tile_kernels = options.weight_irradiance_kernel;
   try {
     result.effects = diagnoseEffects(ei, options.effects);
     if (!result.effects.fits.empty()) {

@@ -9,22 +9,11 @@
 #include "crfcal/kernel.hpp"
 #include "crfcal/response_curve.hpp"
 #include "crfcal/response_model.hpp"
+#include "irradiance_kernel_inputs.hpp"
 #include "pair_stages.hpp"
 
 namespace crfcal::detail {
 namespace {
-
-// Weights of the irradiance-domain kernel equations: 1 / φ'(B). The pixels' errors (noise, JPEG, the chroma of
-// 4:2:0 edges) are intensity errors, which φ multiplies by its slope; unweighted, the bright edges, where a convex φ
-// is steepest, would dominate the regression with their amplified errors. φ' is a central difference over ±5 levels
-// of 8 bits (the fitted φ is smooth; the step only has to see past quantisation), floored at 1/50 of φ's mean slope
-// (which is 1: φ(0) = 0, φ(1) = 1) so that the flat dark toe of a convex φ cannot take all the weight.
-cv::Mat intensityScaleWeights(const ResponseCurve& curve, const cv::Mat& blurred) {
-  constexpr double step = 5.0 / 255, min_slope = 0.02;
-  const cv::Mat upper = curve.inverse(cv::min(blurred + step, 1.0)), lower = curve.inverse(cv::max(blurred - step, 0.0));
-  const cv::Mat slope = (upper - lower) / (2 * step);
-  return 1.0 / cv::max(slope, min_slope);
-}
 
 // φ_G with the first kernel. With a blur too small to separate φ^γ, r^γ from φ, r the images cannot give r (log r
 // moves with γ·log r): if theirs disagrees with EXIF / --ratio beyond the tolerance of nominal EXIF values, r is

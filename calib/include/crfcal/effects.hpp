@@ -64,7 +64,8 @@
 // When an effect is detected the reported φ comes from the extended model: the jointly re-fitted φ_ext and the
 // parameters correct the pair (B' = ψ(φ(B)/g(ρ)) for vignetting, B' = ψ(φ(B) − c) for an offset,
 // I'_c = ψ_c(φ_c(I_c) + Σ_d (m_cd/a_c)(φ_d(I_d) − φ_c(I_c))) for mixing — only the channel's own row; the plateau is
-// excluded like saturation; per-tile fits with the first-order kernel at each tile's centre, averaged; a
+// excluded like saturation; a varying blur: one φ fitted to all tiles at once, each tile with its own kernel
+// estimated in the irradiance domain (the first-order kernel at its centre where it has too few edges); a
 // level-dependent σ(v) goes to the fitter's noise_sigma_per_level when its noise handling uses σ; the extended
 // model's r starts the fitter) and φ is refitted (fitInverseCrf, same options), `refit_rounds` times (parameters
 // and φ_ext re-estimated with each refitted φ). With only exposure_ratio_mismatch, φ is refitted from the
@@ -77,7 +78,8 @@
 // ratio_tolerance) and its held-out error — φ and r as reported, each under the model it was fitted under, the models'
 // parameters fitted on one fold and measured on the other — is not larger than the base fit's. Otherwise the base
 // fit's φ is reported, the effects stay named and the reason is recorded (refit_rejected_reason). A spatially
-// varying blur's per-tile refit gets the plausibility checks only (the residual problem holds one kernel).
+// varying blur's per-tile refit is judged, with the base fit's φ, under the first-order kernel (the residual problem
+// holds one kernel); beside a level effect by the plausibility checks only.
 // Code: the search's stages in effect_search.cpp, the shared residual problem in effect_problem.hpp, one file per
 // effect test (effect_<name>.cpp); adding an effect is one file, one registry line and its name
 // in effectNames() (effect_problem.hpp says how).
@@ -173,7 +175,10 @@ struct EffectInputs {
   double corner_radius = 0;                        // normalising radius (≤ 0: half-diagonal of the window)
   cv::Mat valid;                                   // optional CV_8U: usable pixels (registration overlap)
   CrfFitOptions fit;                               // the options of the base fits (refits use them)
-  KernelEstimationOptions kernel_options;          // for the per-tile kernels
+  // A named spatially varying blur's refit estimates each tile's own kernel with these, in the irradiance domain
+  // (lambda: the kernel↔φ rounds' PairCalibrationOptions::irradiance_kernel_lambda), weighted 1/φ'(B) unless off.
+  KernelEstimationOptions kernel_options;
+  bool weighted_tile_kernels = true;               // PairCalibrationOptions::weight_irradiance_kernel
 };
 
 EffectReport diagnoseEffects(const EffectInputs& inputs, const EffectOptions& options = {});
