@@ -132,5 +132,25 @@ TEST(BenchEffectsRefit, VaryingBlurRefitWithEachTilesOwnKernelRecoversTheShape) 
   }
 }
 
+// In the real regime (r ≈ 6, a camera's sensor noise in the sharp shot) a varying blur's refit holds r at the tiles'
+// own r from the images, along the exponent valley φ^γ, r^γ. When the pair's ratio evidence (the images' r combined
+// with EXIF) moves r, the base model refitted at that r replaces the refit: on the blur beside a highlight knee
+// (seed 1, only the blur named) φ's shape 0.0183 → 0.0090 (pair_stage_ratio.cpp, docs/RESULTS.md#effects-tile-kernels).
+TEST(BenchEffectsRefit, VaryingBlurRefitGivesWayToTheRatioEvidenceInTheRealRegime) {
+  test::TempDir root;
+  const fs::path json = root / "cases.json";
+  const auto bench = test::run(quote(test::crfcalBinary()) +
+                               " bench effects --form held-out --jpeg 90 --handheld --ratio 6 --sharp-noise sensor"
+                               " --noise-profiles " + quote(test::samples() / "noise_profiles" / "noiseprofiles.json") +
+                               " --effect spatially_varying_blur+clipping --seeds 1 --json " + quote(json));
+  ASSERT_EQ(bench.exit_code, 0) << bench.output;
+  const nlohmann::json cases = readJson(json).at("cases");
+  ASSERT_EQ(cases.size(), 1u) << bench.output;
+  const nlohmann::json& c = cases.at(0);
+  const std::vector<std::string> named = c.at("detected").get<std::vector<std::string>>();
+  ASSERT_EQ(named, std::vector<std::string>{"spatially_varying_blur"}) << bench.output;
+  EXPECT_LT(c.at("phi_shape").get<double>(), 0.013) << bench.output;  // 0.0090; the refit kept: 0.0183
+}
+
 }  // namespace
 }  // namespace crfcal

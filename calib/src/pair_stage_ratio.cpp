@@ -59,6 +59,16 @@ std::string conflictWarning(const RatioEvidence& evidence, const std::string& no
   return buffer;
 }
 
+// Whether the effects' adopted refit is a spatially varying blur's alone (no level effect named). It changes the
+// kernel model, not the levels, and holds r at the tiles' own r from the images — the r this stage weighs against
+// the nominal ratio, not a level effect's r that explains the misfit.
+bool varyingBlurRefitAlone(const PairCalibrationResult& result) {
+  if (result.base_fits.empty() || !namedByEffects(result, "spatially_varying_blur")) return false;
+  for (const char* level : {"vignetting", "black_level_offset", "clipping", "channel_mixing"})
+    if (namedByEffects(result, level)) return false;
+  return true;
+}
+
 }  // namespace
 
 void combineRatioWithNominal(PairCalibrationState& state) {
@@ -71,7 +81,8 @@ void combineRatioWithNominal(PairCalibrationState& state) {
     return;
   const auto start = Clock::now();
   state.report("ratio", 0, "half-sample refits");
-  const CrfFitResult& green = result.fits.at("G");
+  const bool blur_alone = varyingBlurRefitAlone(result);
+  const CrfFitResult& green = blur_alone ? result.base_fits.at("G") : result.fits.at("G");
   const HalfSampleRefits refits =
       refitOnHalfSamples(state.window_sharp.at("G"), state.window_blurred.at("G"), cropKernel(state.kernel, 0.0),
                          state.fit_options, green.pixels.used_mask, ro.replicates, ro.block_size, options.band.seed);
@@ -87,6 +98,19 @@ void combineRatioWithNominal(PairCalibrationState& state) {
   // (refitting the base model would discard it), and an exposure_ratio_mismatch they named is EXIF found off on
   // held-back pixels — stronger than the precisions above, unless the shots' brightness sided with EXIF in a conflict.
   const bool moves = evidence.combined && std::abs(evidence.ratio / evidence.images_ratio - 1) > ro.min_relative_change;
+  // A varying blur's refit held the images' r along the exponent valley φ^γ, r^γ; when the evidence moves r, the
+  // base model refitted at the combined r replaces it (measured at r ≈ 6: the blur beside a knee, shape 0.018 →
+  // 0.009; nothing else changed in the effect benches, docs/RESULTS.md#effects-tile-kernels).
+  if (moves && blur_alone) {
+    result.fits = result.base_fits;
+    result.base_fits.clear();
+    result.effects.refit_adopted = false;
+    result.effects.rejected_fits = std::move(result.effects.fits);
+    result.effects.fits.clear();
+    result.effects.refit_rejected_reason =
+        "the varying blur's refit holds the images' r; the pair's ratio evidence moves r, and the base model is "
+        "refitted there";
+  }
   if (moves && !result.base_fits.empty())
     evidence.not_adopted_reason = "an effect's extended model supplied the fits (its own r kept)";
   else if (moves && evidence.decision != RatioDecision::nominal_held && namedByEffects(result, "exposure_ratio_mismatch"))
