@@ -21,6 +21,28 @@ namespace fs = std::filesystem;
 using test::quote;
 using test::readJson;
 
+// `crfcal bench effects ARGUMENTS --json FILE`: the run, and its cases when it succeeded.
+struct BenchEffectsRun {
+  test::CommandResult run;
+  nlohmann::json cases = nlohmann::json::array();
+};
+
+BenchEffectsRun benchEffects(const std::string& arguments) {
+  test::TempDir root;
+  const fs::path json = root / "cases.json";
+  BenchEffectsRun out{
+      test::run(quote(test::crfcalBinary()) + " bench effects " + arguments + " --json " + quote(json))};
+  if (out.run.exit_code == 0) out.cases = readJson(json).at("cases");
+  return out;
+}
+
+// The effects bench's real regime: r ≈ 6 with the bundled camera's sensor noise in the sharp shot, 4:2:0 JPEG,
+// handheld, the held-out forms.
+std::string realRegimeHeldOut() {
+  return "--form held-out --jpeg 90 --handheld --ratio 6 --sharp-noise sensor --noise-profiles " +
+         quote(test::samples() / "noise_profiles" / "noiseprofiles.json");
+}
+
 double rmse(const std::vector<double>& a, const std::vector<double>& b) {
   double sum = 0;
   for (std::size_t i = 0; i < a.size(); ++i) sum += (a[i] - b[i]) * (a[i] - b[i]);
@@ -62,23 +84,17 @@ TEST(BenchEffectsPairsOut, WrittenPairCalibratesBackToTheBenchesResult) {
 // named it "exposure_ratio_mismatch + spatially_varying_blur" before; EXIF's r is right there, so only the blur is
 // named.
 TEST(BenchEffectsAttribution, VaryingBlurAtRatio6IsNotAlsoNamedARatioMismatch) {
-  test::TempDir root;
-  const fs::path json = root / "cases.json";
-  const auto bench = test::run(quote(test::crfcalBinary()) +
-                               " bench effects --form held-out --jpeg 90 --handheld --ratio 6 --sharp-noise sensor"
-                               " --noise-profiles " + quote(test::samples() / "noise_profiles" / "noiseprofiles.json") +
-                               " --effect spatially_varying_blur --seeds 2 --json " + quote(json));
-  ASSERT_EQ(bench.exit_code, 0) << bench.output;
+  const BenchEffectsRun bench = benchEffects(realRegimeHeldOut() + " --effect spatially_varying_blur --seeds 2");
+  ASSERT_EQ(bench.run.exit_code, 0) << bench.run.output;
   bool seen = false;
-  const nlohmann::json cases = readJson(json).at("cases");
-  for (const nlohmann::json& c : cases) {
+  for (const nlohmann::json& c : bench.cases) {
     if (c.at("seed").get<int>() != 2) continue;
     seen = true;
     const std::vector<std::string> named = c.at("detected").get<std::vector<std::string>>();
-    EXPECT_NE(std::find(named.begin(), named.end(), "spatially_varying_blur"), named.end()) << bench.output;
-    EXPECT_EQ(std::find(named.begin(), named.end(), "exposure_ratio_mismatch"), named.end()) << bench.output;
+    EXPECT_NE(std::find(named.begin(), named.end(), "spatially_varying_blur"), named.end()) << bench.run.output;
+    EXPECT_EQ(std::find(named.begin(), named.end(), "exposure_ratio_mismatch"), named.end()) << bench.run.output;
   }
-  EXPECT_TRUE(seen) << bench.output;
+  EXPECT_TRUE(seen) << bench.run.output;
 }
 
 // The refit under a blur that varies across the frame (one φ fitted to all tiles at once, each tile with its own
@@ -88,25 +104,22 @@ TEST(BenchEffectsAttribution, VaryingBlurAtRatio6IsNotAlsoNamedARatioMismatch) {
 // shape over the covered range 0.0059 adopting every refit, 0.0091 adopting none, 0.0037 with the guard (the
 // first-order kernel's refits adopted unjudged: 0.0053; docs/RESULTS.md#effects-blur-guard).
 TEST(BenchEffectsRefit, VaryingBlurRefitIsKeptOnlyWhereItExplainsHeldBackPixelsBetter) {
-  test::TempDir root;
-  const fs::path json = root / "cases.json";
-  const auto bench = test::run(quote(test::crfcalBinary()) +
-                               " bench effects --effect spatially_varying_blur --seeds 5 --json " + quote(json));
-  ASSERT_EQ(bench.exit_code, 0) << bench.output;
-  const nlohmann::json cases = readJson(json).at("cases");
-  ASSERT_EQ(cases.size(), 5u) << bench.output;
+  const BenchEffectsRun bench = benchEffects("--effect spatially_varying_blur --seeds 5");
+  ASSERT_EQ(bench.run.exit_code, 0) << bench.run.output;
+  const nlohmann::json& cases = bench.cases;
+  ASSERT_EQ(cases.size(), 5u) << bench.run.output;
   double shape = 0, shape_base = 0;
   int adopted = 0;
   for (const nlohmann::json& c : cases) {
     const std::vector<std::string> named = c.at("detected").get<std::vector<std::string>>();
-    ASSERT_NE(std::find(named.begin(), named.end(), "spatially_varying_blur"), named.end()) << bench.output;
+    ASSERT_NE(std::find(named.begin(), named.end(), "spatially_varying_blur"), named.end()) << bench.run.output;
     shape += c.at("phi_shape").get<double>() / 5;
     shape_base += c.at("phi_shape_base").get<double>() / 5;
     adopted += c.at("phi_rmse").get<double>() != c.at("phi_rmse_base").get<double>();
   }
-  EXPECT_GE(adopted, 1) << "the guard keeps the refits that mend the shape\n" << bench.output;
-  EXPECT_LT(shape, 0.0048) << "mean shape; adopting every refit gave 0.0059\n" << bench.output;
-  EXPECT_LT(shape, shape_base) << bench.output;
+  EXPECT_GE(adopted, 1) << "the guard keeps the refits that mend the shape\n" << bench.run.output;
+  EXPECT_LT(shape, 0.0048) << "mean shape; adopting every refit gave 0.0059\n" << bench.run.output;
+  EXPECT_LT(shape, shape_base) << bench.run.output;
 }
 
 // A blur that varies across the frame in forms the first-order kernel K₀ + u K_x + v K_y does not assume (the
@@ -115,20 +128,17 @@ TEST(BenchEffectsRefit, VaryingBlurRefitIsKeptOnlyWhereItExplainsHeldBackPixelsB
 // first-order kernel at each tile's centre the refits were 0.029 / 0.019 in shape, and the guard kept the base fits
 // (0.013 / 0.025) instead (docs/RESULTS.md#effects-tile-kernels).
 TEST(BenchEffectsRefit, VaryingBlurRefitWithEachTilesOwnKernelRecoversTheShape) {
-  test::TempDir root;
-  const fs::path json = root / "cases.json";
-  const auto bench = test::run(quote(test::crfcalBinary()) +
-                               " bench effects --form held-out --jpeg 90 --handheld --effect spatially_varying_blur"
-                               " --seeds 2 --json " + quote(json));
-  ASSERT_EQ(bench.exit_code, 0) << bench.output;
-  const nlohmann::json cases = readJson(json).at("cases");
-  ASSERT_EQ(cases.size(), 2u) << bench.output;
+  const BenchEffectsRun bench =
+      benchEffects("--form held-out --jpeg 90 --handheld --effect spatially_varying_blur --seeds 2");
+  ASSERT_EQ(bench.run.exit_code, 0) << bench.run.output;
+  const nlohmann::json& cases = bench.cases;
+  ASSERT_EQ(cases.size(), 2u) << bench.run.output;
   for (const nlohmann::json& c : cases) {
     const std::vector<std::string> named = c.at("detected").get<std::vector<std::string>>();
-    ASSERT_NE(std::find(named.begin(), named.end(), "spatially_varying_blur"), named.end()) << bench.output;
+    ASSERT_NE(std::find(named.begin(), named.end(), "spatially_varying_blur"), named.end()) << bench.run.output;
     const double shape = c.at("phi_shape"), base = c.at("phi_shape_base");
-    EXPECT_LT(shape, 0.008) << "seed " << c.at("seed") << "\n" << bench.output;  // measured 0.0023 / 0.0050
-    EXPECT_LT(shape, 0.5 * base) << "seed " << c.at("seed") << "\n" << bench.output;
+    EXPECT_LT(shape, 0.008) << "seed " << c.at("seed") << "\n" << bench.run.output;  // measured 0.0023 / 0.0050
+    EXPECT_LT(shape, 0.5 * base) << "seed " << c.at("seed") << "\n" << bench.run.output;
   }
 }
 
@@ -137,19 +147,15 @@ TEST(BenchEffectsRefit, VaryingBlurRefitWithEachTilesOwnKernelRecoversTheShape) 
 // with EXIF) moves r, the base model refitted at that r replaces the refit: on the blur beside a highlight knee
 // (seed 1, only the blur named) φ's shape 0.0183 → 0.0090 (pair_stage_ratio.cpp, docs/RESULTS.md#effects-tile-kernels).
 TEST(BenchEffectsRefit, VaryingBlurRefitGivesWayToTheRatioEvidenceInTheRealRegime) {
-  test::TempDir root;
-  const fs::path json = root / "cases.json";
-  const auto bench = test::run(quote(test::crfcalBinary()) +
-                               " bench effects --form held-out --jpeg 90 --handheld --ratio 6 --sharp-noise sensor"
-                               " --noise-profiles " + quote(test::samples() / "noise_profiles" / "noiseprofiles.json") +
-                               " --effect spatially_varying_blur+clipping --seeds 1 --json " + quote(json));
-  ASSERT_EQ(bench.exit_code, 0) << bench.output;
-  const nlohmann::json cases = readJson(json).at("cases");
-  ASSERT_EQ(cases.size(), 1u) << bench.output;
+  const BenchEffectsRun bench =
+      benchEffects(realRegimeHeldOut() + " --effect spatially_varying_blur+clipping --seeds 1");
+  ASSERT_EQ(bench.run.exit_code, 0) << bench.run.output;
+  const nlohmann::json& cases = bench.cases;
+  ASSERT_EQ(cases.size(), 1u) << bench.run.output;
   const nlohmann::json& c = cases.at(0);
   const std::vector<std::string> named = c.at("detected").get<std::vector<std::string>>();
-  ASSERT_EQ(named, std::vector<std::string>{"spatially_varying_blur"}) << bench.output;
-  EXPECT_LT(c.at("phi_shape").get<double>(), 0.013) << bench.output;  // 0.0090; the refit kept: 0.0183
+  ASSERT_EQ(named, std::vector<std::string>{"spatially_varying_blur"}) << bench.run.output;
+  EXPECT_LT(c.at("phi_shape").get<double>(), 0.013) << bench.run.output;  // 0.0090; the refit kept: 0.0183
 }
 
 }  // namespace
