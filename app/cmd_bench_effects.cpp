@@ -327,13 +327,14 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
     const auto& base_phi = (result.base_fits.empty() ? result.fits : result.base_fits).at("G").inverse_crf;
     r.rmse_base = rmse(base_phi);
     IntensityRange measured = coveredBelow(result, planted.plateau_intensity);
-    auto shapes = [&] {
+    // The reported and base fits' shape over `measured` (narrowed to the twin's covered range first, when there is one).
+    const auto scoreShapes = [&] {
       r.shape = shapeError(truth, result.fits.at("G").inverse_crf, measured);
       r.shape_base = shapeError(truth, base_phi, measured);
     };
     if (isClean(effect)) {
       r.rmse_clean = r.rmse_base;
-      shapes();
+      scoreShapes();
       r.shape_clean = r.shape_base;
     } else {
       PlantingOptions clean = s.planting;
@@ -348,7 +349,7 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
       r.rmse_clean = rmse(twin_phi);
       const IntensityRange twin_measured = coveredBelow(twin, planted.plateau_intensity);
       measured = {std::max(measured.first, twin_measured.first), std::min(measured.second, twin_measured.second)};
-      shapes();
+      scoreShapes();
       r.shape_clean = shapeError(truth, twin_phi, measured);
     }
     r.phi_ok = r.rmse <= r.rmse_clean + kPhiTolerance;
