@@ -157,8 +157,10 @@ std::string heldoutReason(EffectSearch& search, const std::vector<Curve>& base_c
   // "Not worse" up to the sums' rounding: the same curve at another scale ties with the base fit.
   const auto notWorse = [&](double base_error) { return report.heldout_error_refit <= base_error * (1 + 1e-9); };
   if (!notWorse(report.heldout_error_base_fit)) return "its phi explains the held-back pixels worse than the base fit";
+  // With nothing selected the search's φ and r are the base fit's: the check already measured the first-order
+  // kernel around them (the same samples, folds and φ(I)), so its held-out error is the base fit's.
   report.heldout_error_base_fit_selected_model =
-      first_order ? firstOrderBlurHeldoutError(search, base_curves, base_ratios)
+      first_order ? (search.blur.ok ? search.blur.heldout_error : std::numeric_limits<double>::infinity())
                   : heldoutError(base_problem, search.current);
   if (!notWorse(report.heldout_error_base_fit_selected_model))
     return "under the same extended model the base fit's phi explains the held-back pixels better than the "
