@@ -126,8 +126,10 @@ nlohmann::json runMiddlebury(const RawTruthBenchArgs& args, const fs::path& root
         options.channels = {"G"};  // the pointwise comparison is of G alone
         options.colour_matrix = false;
         const RawTruthResult plain = computeRawTruth(jpeg, linear, options);
-        const RawTruthChannel& g = *std::find_if(truth.channels.begin(), truth.channels.end(),
-                                                 [](const RawTruthChannel& c) { return c.channel == "G"; });
+        const auto green = std::find_if(truth.channels.begin(), truth.channels.end(),
+                                         [](const RawTruthChannel& c) { return c.channel == "G"; });
+        if (green == truth.channels.end() || plain.channels.empty()) throw Error("no green channel in the RAW truth");
+        const RawTruthChannel& g = *green;
         entry.update({{"covered", {g.fit.covered_range.first, g.fit.covered_range.second}},
                       {"terms", g.fit.terms},
                       {"explained", g.explained},
