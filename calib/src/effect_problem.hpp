@@ -332,18 +332,22 @@ Comparison compare(const std::vector<double>& base, const std::vector<double>& e
 Comparison scoreTest(const std::vector<Samples>& samples, const Evaluation& base, const Evaluation& ext,
                      const std::vector<char>& affected, int blocks);
 
-// ---- the first-order kernel (effect_spatially_varying_blur.cpp fits it; the refit uses it per tile) -------------
+// ---- the varying kernel (effect_spatially_varying_blur.cpp fits it; the refit uses it per tile) -----------------
 
+// K(p) = K₀ + u K_x + v K_y + c R(u, v): first order in the position, plus the second-order term of a roll spread
+// symmetrically about the centre, R(u, v) = (−v ∂x + u ∂y)² K (K the global kernel, normalised).
 struct BlurTest {
   bool ok = false;
   std::string problem;
   Comparison cmp;
-  double variation = 0;             // (‖K_x‖ + ‖K_y‖) / ‖K₀‖: relative kernel change from the centre to a corner
+  double variation = 0;             // (‖K_x‖ + ‖K_y‖) / ‖K₀‖: relative first-order change from the centre to a corner
   cv::Mat K0, Kx, Ky;               // fitted on all samples (unnormalised: the scale carries r)
-  double heldout_error = 0;         // Σe² / n of the first-order model on the held-back rows
+  double roll = 0;                  // c, fitted with them
+  cv::Mat Kxx, Kxy, Kyy;            // the global kernel's second derivatives (R's parts)
+  double heldout_error = 0;         // Σe² / n of the varying kernel on the held-back rows
 };
 
-// The first-order kernel at a point: K₀ + u K_x + v K_y, non-negative, normalised.
+// The varying kernel at a point (u, v relative to the centre, over the half-diagonal), non-negative, normalised.
 cv::Mat kernelAt(const BlurTest& bt, double u, double v);
 
 // ---- the search's shared state -------------------------------------------------------------------------------------
@@ -452,11 +456,11 @@ const ModelCheck& spatiallyVaryingBlurCheck();
 const ModelCheck& exposureRatioMismatchCheck();
 const ModelCheck& signalDependentNoiseCheck();
 
-// Held-out Σe² / n of the first-order kernel model around the given φ and r, φ held as given: (K₀, K_x, K_y) fitted
-// on one fold of the reported channel's samples and measured on the other, both ways, as the check tests it. The
+// Held-out Σe² / n of the varying kernel (BlurTest) around the given φ and r, φ held as given: (K₀, K_x, K_y, c)
+// fitted on one fold of the reported channel's samples and measured on the other, both ways, as the check tests it. The
 // refit guard compares a spatially varying blur's refitted φ with the base fit's by it (effect_refit_guard.cpp).
 // +∞ when the model cannot be fitted.
-double firstOrderBlurHeldoutError(const EffectSearch& search, const std::vector<Curve>& curves,
+double varyingKernelHeldoutError(const EffectSearch& search, const std::vector<Curve>& curves,
                                   const std::vector<double>& ratios);
 
 // ---- attribution (effect_attribution.cpp) ---------------------------------------------------------------------------

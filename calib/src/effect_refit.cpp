@@ -43,11 +43,11 @@ CrfFitResult averageFits(const std::vector<CrfFitResult>& fits) {
 
 // Each tile's own kernel, estimated on that tile alone in the irradiance domain around the refit's φ of the reported
 // channel, as the pipeline's kernel↔φ rounds estimate the global one (denoised I, weights 1/φ'(B)): the blur there,
-// whatever its form across the frame. The first-order kernel K₀ + u K_x + v K_y the check fits is linear in the
-// position; a depth-dependent kernel scale, or a rotation's blur growing with the radius, is not. Measured on `bench
+// whatever its form across the frame. The check's varying kernel K₀ + u K_x + v K_y + c R(u, v) is a second-order
+// expansion of a roll; a depth-dependent kernel scale, or a roll too large for the expansion, is not. Measured on `bench
 // effects --effect spatially_varying_blur --seeds 20`: φ ok 14 → 16 of 20, mean shape over the covered range 0.0103 →
 // 0.0069 against the clean twins' 0.0066 (docs/RESULTS.md#effects-tile-kernels). An empty kernel: that tile has too
-// few edges of its own (its first-order kernel is used).
+// few edges of its own (the check's varying kernel is used).
 std::vector<cv::Mat> ownTileKernels(const EffectSearch& search, const PairCorrection& pair) {
   const int gi = search.g_index;
   const ResponseCurve& curve = pair.ext[gi].curve;
@@ -68,8 +68,8 @@ std::vector<cv::Mat> ownTileKernels(const EffectSearch& search, const PairCorrec
   return kernels;
 }
 
-// One tile of the frame with its own kernel (or, without one, the first-order kernel at its centre: the check's
-// K₀ + u K_x + v K_y), grown by the kernel's reach.
+// One tile of the frame with its own kernel (or, without one, the check's varying kernel at its centre), grown by
+// the kernel's reach.
 JointFitPair tilePair(const EffectSearch& search, const cv::Rect& t, const cv::Mat& own_kernel, const cv::Mat& I,
                       const cv::Mat& B, const CrfFitOptions& fo) {
   const cv::Point2d tc(t.x + t.width / 2.0, t.y + t.height / 2.0);

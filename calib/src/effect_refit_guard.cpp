@@ -16,7 +16,7 @@
 //      (scaleToBase, one factor for all channels), a refit flat over the data rejected. The refit is adopted only
 //      when its held-out error is not larger than the base fit's: the comparison is between two fitted curves, so
 //      no threshold is needed beyond "not worse". A spatially varying blur's refit (per-tile kernels) is judged under
-//      the first-order kernel model instead (the residual problem holds one kernel), and by 1. only beside level
+//      the check's varying kernel instead (the residual problem holds one kernel), and by 1. only beside level
 //      effects;
 //   3. the same model: the refitted φ and r against the base fit's φ and r, both under the selected extended model
 //      (its parameters fitted on one fold, measured on the other). Test 2 compares two models: a real effect makes
@@ -139,29 +139,29 @@ std::string implausibility(const EffectSearch& search) {
 
 // Tests 2 and 3 (above) after an earlier test's `reason` (then only test 2's numbers are recorded); empty when the
 // refit passes. A spatially varying blur's refit is fitted per tile, each with its own kernel, which the residual
-// problem (one kernel) cannot hold: alone, the refitted φ and the base fit's are judged under that first-order model
-// (firstOrderBlurHeldoutError; before, such a refit was adopted unjudged: docs/RESULTS.md#effects-blur-guard); beside
-// level effects, which the first-order kernel test does not carry, only the plausibility checks apply.
+// problem (one kernel) cannot hold: alone, the refitted φ and the base fit's are judged under the check's varying
+// kernel (varyingKernelHeldoutError; before, such a refit was adopted unjudged: docs/RESULTS.md#effects-blur-guard);
+// beside level effects, which the varying-kernel test does not carry, only the plausibility checks apply.
 std::string heldoutReason(EffectSearch& search, const std::vector<Curve>& base_curves,
                           const std::vector<double>& base_ratios, const std::vector<Curve>& refit_curves,
                           const std::vector<double>& refit_ratios, std::string reason) {
   EffectReport& report = search.report;
   const bool varying_blur = search.entry("spatially_varying_blur").detected;
-  const bool first_order = varying_blur && search.selected.empty();
+  const bool blur_alone = varying_blur && search.selected.empty();
   const Problem base_problem = phiAsGivenProblem(search, base_curves, base_ratios);
   report.heldout_error_base_fit = heldoutError(base_problem, Spec{});
   report.heldout_error_refit =
-      first_order ? firstOrderBlurHeldoutError(search, refit_curves, refit_ratios)
+      blur_alone ? varyingKernelHeldoutError(search, refit_curves, refit_ratios)
                   : heldoutError(phiAsGivenProblem(search, refit_curves, refit_ratios), search.current);
-  if (!reason.empty() || (varying_blur && !first_order)) return reason;
+  if (!reason.empty() || (varying_blur && !blur_alone)) return reason;
   // "Not worse" up to the sums' rounding: the same curve at another scale ties with the base fit.
   const auto notWorse = [&](double base_error) { return report.heldout_error_refit <= base_error * (1 + 1e-9); };
   if (!notWorse(report.heldout_error_base_fit)) return "its phi explains the held-back pixels worse than the base fit";
-  // With nothing selected the search's φ and r are the base fit's: the check already measured the first-order
+  // With nothing selected the search's φ and r are the base fit's: the check already measured the varying
   // kernel around them (the same samples, folds and φ(I)), so its held-out error is the base fit's.
   report.heldout_error_base_fit_selected_model =
-      first_order ? (search.blur.ok ? search.blur.heldout_error : std::numeric_limits<double>::infinity())
-                  : heldoutError(base_problem, search.current);
+      blur_alone ? (search.blur.ok ? search.blur.heldout_error : std::numeric_limits<double>::infinity())
+                 : heldoutError(base_problem, search.current);
   if (!notWorse(report.heldout_error_base_fit_selected_model))
     return "under the same extended model the base fit's phi explains the held-back pixels better than the "
            "refitted phi: the effect, not a new phi, explains the misfit";

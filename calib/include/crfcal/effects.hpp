@@ -29,8 +29,10 @@
 //                                                             "none" included)
 //   exposure_ratio_mismatch a free vs a = r_EXIF, each model with its own φ (the fitter with r fixed), within the
 //                                                             selected model
-//   spatially_varying_blur  a kernel linear in the position, K₀ + u K_x + v K_y (camera roll to first order), vs one
-//                           K₀, both fitted by least squares on the same fold (kernel estimated by the pipeline only)
+//   spatially_varying_blur  a kernel varying with the position, K₀ + u K_x + v K_y + c R(u, v) (a camera roll to
+//                           first order, and a roll spread about the centre to second: R = (−v ∂x + u ∂y)² K), vs
+//                           one K₀, both fitted by least squares on the same fold (kernel estimated by the pipeline
+//                           only)
 // Cross-validation: the window is cut in a grid of tiles, each tile in two halves; the halves form two folds in a
 // checkerboard. Parameters are fitted on one fold and the error is measured on the other, both ways (the extended
 // model's fit starts from the base model's, so the comparison reflects the added parameters).
@@ -65,7 +67,7 @@
 // parameters correct the pair (B' = ψ(φ(B)/g(ρ)) for vignetting, B' = ψ(φ(B) − c) for an offset,
 // I'_c = ψ_c(φ_c(I_c) + Σ_d (m_cd/a_c)(φ_d(I_d) − φ_c(I_c))) for mixing — only the channel's own row; the plateau is
 // excluded like saturation; a varying blur: one φ fitted to all tiles at once, each tile with its own kernel
-// estimated in the irradiance domain (the first-order kernel at its centre where it has too few edges); a
+// estimated in the irradiance domain (the check's varying kernel at its centre where it has too few edges); a
 // level-dependent σ(v) goes to the fitter's noise_sigma_per_level when its noise handling uses σ; the extended
 // model's r starts the fitter) and φ is refitted (fitInverseCrf, same options), `refit_rounds` times (parameters
 // and φ_ext re-estimated with each refitted φ). With only exposure_ratio_mismatch, φ is refitted from the
@@ -78,7 +80,7 @@
 // ratio_tolerance) and its held-out error — φ and r as reported, each under the model it was fitted under, the models'
 // parameters fitted on one fold and measured on the other — is not larger than the base fit's. Otherwise the base
 // fit's φ is reported, the effects stay named and the reason is recorded (refit_rejected_reason). A spatially
-// varying blur's per-tile refit is judged, with the base fit's φ, under the first-order kernel (the residual problem
+// varying blur's per-tile refit is judged, with the base fit's φ, under the varying kernel (the residual problem
 // holds one kernel); beside a level effect by the plausibility checks only.
 // Code: the search's stages in effect_search.cpp, the shared residual problem in effect_problem.hpp, one file per
 // effect test (effect_<name>.cpp); adding an effect is one file, one registry line and its name
@@ -109,7 +111,7 @@ struct EffectOptions {
   int grid = 0;                  // tiles per side for the folds / per-tile refits (0: 2 below 600 px, else 3)
   double min_derivative = 0.05;  // φ' floor in the residual scaling
   int phi_terms = 4;             // every model (base too) re-fits φ by this many EMoR basis curves
-  bool test_spatial_blur = true; // first-order kernel test (only when the pipeline estimated the kernel)
+  bool test_spatial_blur = true; // varying-kernel test (only when the pipeline estimated the kernel)
   bool refit = true;             // refit φ with the extended model when an effect is detected
   int refit_rounds = 3;          // correct → refit → re-estimate rounds: final, and after each effect the search
                                  // selects (until φ moves < 5e-4)
