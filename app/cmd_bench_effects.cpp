@@ -61,6 +61,7 @@ struct EffectsArgs {
   double min_z = EffectOptions{}.min_z;
   int phi_terms = EffectOptions{}.phi_terms;
   double min_noise_contrast = EffectOptions{}.min_noise_contrast;
+  int refit_rounds = EffectOptions{}.refit_rounds;
   bool sweep = false;
   std::vector<double> factors{0.25, 0.5, 1.0, 2.0};
   bool verbose = false;
@@ -309,6 +310,7 @@ CaseResult runCase(const Sources& src, const EffectsArgs& args, const std::strin
       options.effects.min_z = args.min_z;
       options.effects.phi_terms = args.phi_terms;
       options.effects.min_noise_contrast = args.min_noise_contrast;
+      options.effects.refit_rounds = args.refit_rounds;
       return calibratePair(pair.sharp, pair.blurred, options);
     };
     const PlantedPair planted = plantEffect(s.photo, s.truth, s.kernel, s.planting);
@@ -609,6 +611,9 @@ const BenchRegistration registration(
           ->check(CLI::Range(0, 10));
       command.add_option("--min-noise-contrast", args->min_noise_contrast,
                          "EffectOptions::min_noise_contrast (noise variance contrast over the levels)");
+      command.add_option("--refit-rounds", args->refit_rounds,
+                         "EffectOptions::refit_rounds (correct, refit, re-estimate rounds; also the settle rounds' cap)")
+          ->check(CLI::Range(1, 10));
       command.add_flag("--sweep", args->sweep,
                        "Instead: the phi bias of each effect when ignored (effects off), per strength factor");
       command.add_option("--factors", args->factors, "--sweep: strengths as multiples of the threshold");
