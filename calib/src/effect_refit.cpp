@@ -44,10 +44,11 @@ CrfFitResult averageFits(const std::vector<CrfFitResult>& fits) {
 // Each tile's own kernel, estimated on that tile alone in the irradiance domain around the refit's φ of the reported
 // channel, as the pipeline's kernel↔φ rounds estimate the global one (denoised I, weights 1/φ'(B)): the blur there,
 // whatever its form across the frame. The check's varying kernel K₀ + u K_x + v K_y + c R(u, v) is a second-order
-// expansion of a roll; a depth-dependent kernel scale, or a roll too large for the expansion, is not. Measured on `bench
-// effects --effect spatially_varying_blur --seeds 20`: φ ok 14 → 16 of 20, mean shape over the covered range 0.0103 →
-// 0.0069 against the clean twins' 0.0066 (docs/RESULTS.md#effects-tile-kernels). An empty kernel: that tile has too
-// few edges of its own (the check's varying kernel is used).
+// expansion of a roll; a depth-dependent kernel scale, or a roll too large for the expansion, is not. Measured on
+// `bench effects --effect spatially_varying_blur --seeds 20` (with the first-order kernel then): φ ok 14 → 16 of 20,
+// mean shape over the covered range 0.0103 → 0.0069 against the clean twins' 0.0066
+// (docs/RESULTS.md#effects-tile-kernels). An empty kernel: that tile has too few edges of its own (the check's
+// varying kernel is used).
 std::vector<cv::Mat> ownTileKernels(const EffectSearch& search, const PairCorrection& pair) {
   const int gi = search.g_index;
   const ResponseCurve& curve = pair.ext[gi].curve;
