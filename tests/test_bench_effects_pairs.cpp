@@ -136,6 +136,20 @@ TEST(BenchEffectsDetection, RollSpreadAboutTheCentreIsNamedAVaryingBlur) {
   EXPECT_GE(rotations, 1) << "seeds 1-3 plant one rotation (seed 3)\n" << bench.run.output;
 }
 
+// A handheld pair registers to within a residual turn, whose shift grows linearly across the frame: the kernel's
+// centroid moves, its shape does not. Clean held-out pairs with the kernel estimated (seeds 5, 7, 8 and 9 of 9) named
+// that a spatially varying blur; the check's base model now carries the shift field d(u, v) · ∇K, so they name
+// nothing (without --handheld none did; docs/RESULTS.md#effects-roll).
+TEST(BenchEffectsDetection, HandheldMisregistrationIsNotNamedAVaryingBlur) {
+  const BenchEffectsRun bench =
+      benchEffects("--form held-out --jpeg 90 --handheld --effect none-estimated --seeds 9");
+  ASSERT_EQ(bench.run.exit_code, 0) << bench.run.output;
+  ASSERT_EQ(bench.cases.size(), 9u) << bench.run.output;
+  for (const nlohmann::json& c : bench.cases)
+    EXPECT_TRUE(c.at("detected").empty()) << "seed " << c.at("seed") << ": " << c.at("detected") << "\n"
+                                          << bench.run.output;
+}
+
 // The refit under a blur that varies across the frame (one φ fitted to all tiles at once, each tile with its own
 // kernel) is judged like every other refit: kept only when its φ explains the held-back pixels better than the base
 // fit's, both under the check's varying kernel (effect_refit_guard.cpp). On the detector form's seeds 1–5 the refits,

@@ -334,8 +334,9 @@ Comparison scoreTest(const std::vector<Samples>& samples, const Evaluation& base
 
 // ---- the varying kernel (effect_spatially_varying_blur.cpp fits it; the refit uses it per tile) -----------------
 
-// K(p) = K₀ + u K_x + v K_y + c R(u, v): first order in the position, plus the second-order term of a roll spread
-// symmetrically about the centre, R(u, v) = (−v ∂x + u ∂y)² K (K the global kernel, normalised).
+// K(p) = K₀ + u K_x + v K_y + c R(u, v) + d(u, v) · ∇K: first order in the position, plus the second-order term of a
+// roll spread symmetrically about the centre, R(u, v) = (−v ∂x + u ∂y)² K, and a shift field d linear in (u, v), a
+// residual misregistration (K the global kernel, normalised). The base model is K₀ with the shift field.
 struct BlurTest {
   bool ok = false;
   std::string problem;
@@ -344,6 +345,8 @@ struct BlurTest {
   cv::Mat K0, Kx, Ky;               // fitted on all samples (unnormalised: the scale carries r)
   double roll = 0;                  // c, fitted with them
   cv::Mat Kxx, Kxy, Kyy;            // the global kernel's second derivatives (R's parts)
+  std::array<double, 4> shift{};    // d = ((d₀ u + d₁ v), (d₂ u + d₃ v)), fitted with them
+  cv::Mat Kdx, Kdy;                 // the global kernel's first derivatives (the shift field's parts)
   double heldout_error = 0;         // Σe² / n of the varying kernel on the held-back rows
 };
 

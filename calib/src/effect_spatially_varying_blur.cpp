@@ -6,10 +6,12 @@
 // about the centre, which no first-order term sees (its kernel is even in p: measured on a planted rotation, the
 // first-order model explained the held-back pixels 69 % worse than one kernel, the roll term 70 % better;
 // docs/RESULTS.md#effects-roll). With θ independent of T that term is c R(u, v), R = (−v ∂x + u ∂y)² K, one
-// parameter c on the global kernel's second derivatives. Base: one kernel K₀; extended: (K₀, K_x, K_y, c); both
-// estimated by least squares in the irradiance domain on the same fold (support: the global kernel's, dilated by
-// one pixel) from Y = φ(B) and φ(I) (debiased when the base fit debiases), residuals weighted 1/φ'(B) like every
-// other test. Tested around the selected model's φ, only when the pipeline estimated the kernel.
+// parameter c on the global kernel's second derivatives. A kernel whose centroid moves linearly across the frame is
+// a misregistration the registration left (a residual turn), not a varying blur: both models carry that shift field
+// d(u, v) · ∇K (four parameters). Base: one kernel K₀ and the shift field; extended: (K₀, K_x, K_y, c) and the shift
+// field; both estimated by least squares in the irradiance domain on the same fold (support: the global kernel's,
+// dilated by one pixel) from Y = φ(B) and φ(I) (debiased when the base fit debiases), residuals weighted 1/φ'(B)
+// like every other test. Tested around the selected model's φ, only when the pipeline estimated the kernel.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -27,6 +29,8 @@ namespace crfcal::effect {
 cv::Mat kernelAt(const BlurTest& bt, double u, double v) {
   cv::Mat k = bt.K0 + u * bt.Kx + v * bt.Ky;
   if (bt.roll != 0) k += bt.roll * (v * v * bt.Kxx - 2 * u * v * bt.Kxy + u * u * bt.Kyy);
+  const auto& d = bt.shift;
+  if (!bt.Kdx.empty()) k += (d[0] * u + d[1] * v) * bt.Kdx + (d[2] * u + d[3] * v) * bt.Kdy;
   k = cv::max(k, 0.0);
   const double sum = cv::sum(k)[0];
   if (!(sum > 0)) return normalizeKernel(bt.K0.clone() + 1e-12);
@@ -35,12 +39,15 @@ cv::Mat kernelAt(const BlurTest& bt, double u, double v) {
 
 namespace {
 
-// The least-squares problem of the kernel entries: rows are weighted samples, columns [K₀ | u K₀ | v K₀] entries and
-// the roll's c (its column ρ = a · R(u, v), R on the support).
+// The least-squares problem of the kernel entries: rows are weighted samples, columns [K₀ entries | the shift field's
+// four | u K₀ | v K₀ entries | the roll's c]. The shift field (column a · ∂K times u or v, ∂K on the support) is the
+// kernel's centroid moving linearly across the frame: a residual misregistration (a turn of the blurred shot that
+// the registration left), not a blur that varies, so the base model carries it too (measured: clean handheld pairs
+// named a varying blur in 4 of 10 without it, 0 of 10 without the handheld turn; docs/RESULTS.md#effects-roll).
 // Every solve goes through the normal equations of one fold (or both): the per-fold Gram matrices DᵀD and Dᵀt are
-// accumulated once (normalEquations), and the base fit (the first m columns) reads their leading block, so the
+// accumulated once (normalEquations), and the base fit (the first m + 4 columns) reads their leading block, so the
 // 3m × 3m products, the test's whole cost, are formed once per fold instead of once per solve. Only the m weighted
-// kernel-footprint values a of each row are stored; the row [a | u a | v a | ρ] is formed in chunks while the Gram
+// kernel-footprint values a of each row are stored; the row [a | s | u a | v a | ρ] is formed in chunks while the Gram
 // matrices accumulate (the whole design, n × 3m, was ~100 MB for a 189-entry support at 0.1 MP, most of a real
 // pair's peak memory and page faults).
 struct KernelDesign {
@@ -48,6 +55,7 @@ struct KernelDesign {
   std::vector<std::size_t> idx;     // the samples used
   Eigen::MatrixXd A;                // n × m: the weighted footprint values a of each row
   Eigen::VectorXd u, v;             // the rows' positions relative to the centre, over the half-diagonal
+  Eigen::MatrixXd shift;            // n × 4: the shift field's columns u a·∂ₓK, v a·∂ₓK, u a·∂ᵧK, v a·∂ᵧK
   Eigen::VectorXd roll;             // ρ: the roll term's column
   Eigen::VectorXd t;
   std::vector<int> fold;
@@ -55,15 +63,17 @@ struct KernelDesign {
   std::array<Eigen::VectorXd, 2> rhs;   // per fold: Dᵀt
   int m() const { return static_cast<int>(support.size()); }
   int n() const { return static_cast<int>(idx.size()); }
-  int extended() const { return 3 * m() + 1; }  // the varying kernel's columns
+  static constexpr int kShift = 4;
+  int base() const { return m() + kShift; }           // one kernel and the shift field
+  int extended() const { return 3 * m() + kShift + 1; }  // the varying kernel
 
-  // Row r's prediction: [a | u a | v a | ρ] · θ, or a · θ for the base model (θ of m entries).
+  // Row r's prediction: [a | s | u a | v a | ρ] · θ, or [a | s] · θ for the base model.
   double predict(int r, const Eigen::VectorXd& theta) const {
     const int cols = static_cast<int>(theta.size()), k = m();
-    double p = A.row(r).dot(theta.head(k));
+    double p = A.row(r).dot(theta.head(k)) + shift.row(r).dot(theta.segment(k, kShift));
     if (cols == extended())
-      p += u(r) * A.row(r).dot(theta.segment(k, k)) + v(r) * A.row(r).dot(theta.segment(2 * k, k)) +
-           roll(r) * theta(3 * k);
+      p += u(r) * A.row(r).dot(theta.segment(base(), k)) + v(r) * A.row(r).dot(theta.segment(base() + k, k)) +
+           roll(r) * theta(cols - 1);
     return p;
   }
 
@@ -86,9 +96,10 @@ struct KernelDesign {
         for (Eigen::Index i = 0; i < count; ++i) {
           const Eigen::Index r = rows[start + static_cast<std::size_t>(i)];
           chunk.row(i).head(k) = A.row(r);
-          chunk.row(i).segment(k, k) = u(r) * A.row(r);
-          chunk.row(i).segment(2 * k, k) = v(r) * A.row(r);
-          chunk(i, 3 * k) = roll(r);
+          chunk.row(i).segment(k, kShift) = shift.row(r);
+          chunk.row(i).segment(base(), k) = u(r) * A.row(r);
+          chunk.row(i).segment(base() + k, k) = v(r) * A.row(r);
+          chunk(i, cols - 1) = roll(r);
           target(i) = t(r);
         }
         detail::addLowerGram(chunk.data(), static_cast<int>(count), cols, static_cast<int>(count), gram[f].data(),
@@ -136,9 +147,12 @@ std::string selectDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, i
   return {};
 }
 
-// The roll term's parts: the second derivatives of the normalised global kernel (3×3 Sobel) on its grid.
-void rollParts(const cv::Mat& K, BlurTest& bt) {
+// The shift field's and the roll term's parts: the first and second derivatives of the normalised global kernel
+// (3×3 Sobel) on its grid.
+void derivativeParts(const cv::Mat& K, BlurTest& bt) {
   const cv::Mat unit = K / cv::sum(K)[0];
+  cv::Sobel(unit, bt.Kdx, CV_64F, 1, 0, 3, 1, 0, cv::BORDER_CONSTANT);
+  cv::Sobel(unit, bt.Kdy, CV_64F, 0, 1, 3, 1, 0, cv::BORDER_CONSTANT);
   cv::Sobel(unit, bt.Kxx, CV_64F, 2, 0, 3, 1, 0, cv::BORDER_CONSTANT);
   cv::Sobel(unit, bt.Kxy, CV_64F, 1, 1, 3, 1, 0, cv::BORDER_CONSTANT);
   cv::Sobel(unit, bt.Kyy, CV_64F, 0, 2, 3, 1, 0, cv::BORDER_CONSTANT);
@@ -148,8 +162,10 @@ void fillDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, const Blur
                 double radius, double min_derivative, KernelDesign& kd) {
   const int m = kd.m(), n = kd.n();
   const int cx = K.cols / 2, cy = K.rows / 2;
-  Eigen::VectorXd rxx(m), rxy(m), ryy(m);
+  Eigen::VectorXd rx(m), ry(m), rxx(m), rxy(m), ryy(m);
   for (int j = 0; j < m; ++j) {
+    rx(j) = parts.Kdx.at<double>(kd.support[j]);
+    ry(j) = parts.Kdy.at<double>(kd.support[j]);
     rxx(j) = parts.Kxx.at<double>(kd.support[j]);
     rxy(j) = parts.Kxy.at<double>(kd.support[j]);
     ryy(j) = parts.Kyy.at<double>(kd.support[j]);
@@ -157,6 +173,7 @@ void fillDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, const Blur
   kd.A.resize(n, m);
   kd.u.resize(n);
   kd.v.resize(n);
+  kd.shift.resize(n, KernelDesign::kShift);
   kd.roll.resize(n);
   kd.t.resize(n);
   kd.fold.resize(n);
@@ -170,7 +187,9 @@ void fillDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, const Blur
     kd.fold[r] = s.fold[i];
     for (int j = 0; j < m; ++j)  // convolve(): out(p) = Σ_j K(j) in(p − (j − c))
       kd.A(r, j) = w * g.at<double>(p.y - (kd.support[j].y - cy), p.x - (kd.support[j].x - cx));
-    const double u = kd.u(r), v = kd.v(r);  // R(u, v) = v² K_xx − 2uv K_xy + u² K_yy
+    const double u = kd.u(r), v = kd.v(r), dx = kd.A.row(r).dot(rx), dy = kd.A.row(r).dot(ry);
+    kd.shift.row(r) << u * dx, v * dx, u * dy, v * dy;
+    // R(u, v) = v² K_xx − 2uv K_xy + u² K_yy
     kd.roll(r) = v * v * kd.A.row(r).dot(rxx) - 2 * u * v * kd.A.row(r).dot(rxy) + u * u * kd.A.row(r).dot(ryy);
   }
 }
@@ -181,13 +200,13 @@ BlurTest spatialBlurTest(const Samples& s, const cv::Mat& g, const cv::Mat& K, c
   KernelDesign kd;
   bt.problem = selectDesign(s, g, K, max_samples, kd);
   if (!bt.problem.empty()) return bt;
-  rollParts(K, bt);
+  derivativeParts(K, bt);
   fillDesign(s, g, K, bt, centre, radius, min_derivative, kd);
   kd.normalEquations();
   const int m = kd.m(), n = kd.n();
   std::array<Eigen::VectorXd, 2> base, ext;
   for (int f = 0; f < 2; ++f) {
-    base[f] = kd.solve(f, m);
+    base[f] = kd.solve(f, kd.base());
     ext[f] = kd.solve(f, kd.extended());
     if (!base[f].allFinite() || !ext[f].allFinite()) {
       bt.problem = "kernel fit failed";
@@ -223,10 +242,11 @@ BlurTest spatialBlurTest(const Samples& s, const cv::Mat& g, const cv::Mat& K, c
   bt.Ky = cv::Mat::zeros(K.size(), CV_64F);
   for (int j = 0; j < m; ++j) {
     bt.K0.at<double>(kd.support[j]) = all(j);
-    bt.Kx.at<double>(kd.support[j]) = all(m + j);
-    bt.Ky.at<double>(kd.support[j]) = all(2 * m + j);
+    bt.Kx.at<double>(kd.support[j]) = all(kd.base() + j);
+    bt.Ky.at<double>(kd.support[j]) = all(kd.base() + m + j);
   }
-  bt.roll = all(3 * m);
+  for (int i = 0; i < KernelDesign::kShift; ++i) bt.shift[static_cast<std::size_t>(i)] = all(m + i);
+  bt.roll = all(kd.extended() - 1);
   const double n0 = cv::norm(bt.K0);
   bt.variation = n0 > 0 ? (cv::norm(bt.Kx) + cv::norm(bt.Ky)) / n0 : 0;
   bt.ok = true;
