@@ -250,11 +250,11 @@ TEST(Effects, ChannelMixingIsFound) {
 
 TEST(Effects, SpatiallyVaryingBlurIsFound) {
   // The kernel must be estimated for this one (a given kernel is taken as the truth). Named alone, and the reported
-  // φ (the per-tile refit where the refit guard adopts it; here the base fit, whose φ explains the held-back pixels
-  // better under the check's varying kernel) is not worse than ignoring the effect. (Within the clean twin's accuracy
-  // is not asserted here: since the irradiance-domain kernel rounds were weighted, the clean estimated-kernel twins
-  // improved — bench median 0.0286 → 0.0117 — and the varying-blur fits did not follow; met in 14 of 20 bench pairs,
-  // docs/RESULTS.md#effects-blur-guard.)
+  // φ (the per-tile refit where the refit guard adopts it, else the base fit, whose φ then explains the held-back
+  // pixels better under the check's varying kernel) is not worse than ignoring the effect. (Within the clean twin's
+  // accuracy is not asserted here: since the irradiance-domain kernel rounds were weighted, the clean estimated-kernel
+  // twins improved — bench median 0.0286 → 0.0117 — and the varying-blur fits did not follow; met in 14 of 20 bench
+  // pairs, docs/RESULTS.md#effects-blur-guard.)
   const Case c = runCase("spatially_varying_blur", {pairOfPhotos(2, 3), "OlympusE10", 1, 1.0, true}, 17);
   ASSERT_EQ(c.detected, std::vector<std::string>{"spatially_varying_blur"})
       << "detected " << names(c.detected) << "\n" << c.result.effects.summary();
