@@ -612,7 +612,7 @@ const BenchRegistration registration(
       command.add_option("--min-noise-contrast", args->min_noise_contrast,
                          "EffectOptions::min_noise_contrast (noise variance contrast over the levels)");
       command.add_option("--refit-rounds", args->refit_rounds,
-                         "EffectOptions::refit_rounds (correct, refit, re-estimate rounds; also caps the settle rounds)")
+                         "EffectOptions::refit_rounds (correct, refit, re-estimate rounds; caps the settle rounds)")
           ->check(CLI::Range(1, 10));
       command.add_flag("--sweep", args->sweep,
                        "Instead: the phi bias of each effect when ignored (effects off), per strength factor");
