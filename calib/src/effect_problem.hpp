@@ -459,12 +459,12 @@ const ModelCheck& spatiallyVaryingBlurCheck();
 const ModelCheck& exposureRatioMismatchCheck();
 const ModelCheck& signalDependentNoiseCheck();
 
-// Held-out Σe² / n of the varying kernel (BlurTest) around the given φ and r, φ held as given: (K₀, K_x, K_y, c)
-// fitted on one fold of the reported channel's samples and measured on the other, both ways, as the check tests it. The
-// refit guard compares a spatially varying blur's refitted φ with the base fit's by it (effect_refit_guard.cpp).
+// Held-out Σe² / n of the varying kernel (BlurTest) around the given φ and r, φ held as given: (K₀, K_x, K_y, c, d)
+// fitted on one fold of the reported channel's samples and measured on the other, both ways, as the check tests it.
+// The refit guard compares a spatially varying blur's refitted φ with the base fit's by it (effect_refit_guard.cpp).
 // +∞ when the model cannot be fitted.
 double varyingKernelHeldoutError(const EffectSearch& search, const std::vector<Curve>& curves,
-                                  const std::vector<double>& ratios);
+                                 const std::vector<double>& ratios);
 
 // ---- attribution (effect_attribution.cpp) ---------------------------------------------------------------------------
 

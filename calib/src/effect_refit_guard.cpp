@@ -152,7 +152,7 @@ std::string heldoutReason(EffectSearch& search, const std::vector<Curve>& base_c
   report.heldout_error_base_fit = heldoutError(base_problem, Spec{});
   report.heldout_error_refit =
       blur_alone ? varyingKernelHeldoutError(search, refit_curves, refit_ratios)
-                  : heldoutError(phiAsGivenProblem(search, refit_curves, refit_ratios), search.current);
+                 : heldoutError(phiAsGivenProblem(search, refit_curves, refit_ratios), search.current);
   if (!reason.empty() || (varying_blur && !blur_alone)) return reason;
   // "Not worse" up to the sums' rounding: the same curve at another scale ties with the base fit.
   const auto notWorse = [&](double base_error) { return report.heldout_error_refit <= base_error * (1 + 1e-9); };

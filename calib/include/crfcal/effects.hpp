@@ -31,8 +31,9 @@
 //                                                             selected model
 //   spatially_varying_blur  a kernel varying with the position, K₀ + u K_x + v K_y + c R(u, v) (a camera roll to
 //                           first order, and a roll spread about the centre to second: R = (−v ∂x + u ∂y)² K), vs
-//                           one K₀, both fitted by least squares on the same fold (kernel estimated by the pipeline
-//                           only)
+//                           one K₀; both models carry a shift field d(u, v) · ∇K, d linear (the misregistration
+//                           registration leaves), and are fitted by least squares on the same fold (kernel
+//                           estimated by the pipeline only)
 // Cross-validation: the window is cut in a grid of tiles, each tile in two halves; the halves form two folds in a
 // checkerboard. Parameters are fitted on one fold and the error is measured on the other, both ways (the extended
 // model's fit starts from the base model's, so the comparison reflects the added parameters).
