@@ -145,9 +145,10 @@ TEST(BenchEffectsDetection, HandheldMisregistrationIsNotNamedAVaryingBlur) {
       benchEffects("--form held-out --jpeg 90 --handheld --effect none-estimated --seeds 9");
   ASSERT_EQ(bench.run.exit_code, 0) << bench.run.output;
   ASSERT_EQ(bench.cases.size(), 9u) << bench.run.output;
-  for (const nlohmann::json& c : bench.cases)
+  for (const nlohmann::json& c : bench.cases) {
     EXPECT_TRUE(c.at("detected").empty()) << "seed " << c.at("seed") << ": " << c.at("detected") << "\n"
                                           << bench.run.output;
+  }
 }
 
 // The refit under a blur that varies across the frame (one φ fitted to all tiles at once, each tile with its own
