@@ -162,13 +162,11 @@ void fillDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, const Blur
                 double radius, double min_derivative, KernelDesign& kd) {
   const int m = kd.m(), n = kd.n();
   const int cx = K.cols / 2, cy = K.rows / 2;
-  Eigen::VectorXd rx(m), ry(m), rxx(m), rxy(m), ryy(m);
+  Eigen::MatrixXd derivatives(m, 5);  // ∂x K, ∂y K, ∂xx K, ∂xy K, ∂yy K on the support
   for (int j = 0; j < m; ++j) {
-    rx(j) = parts.Kdx.at<double>(kd.support[j]);
-    ry(j) = parts.Kdy.at<double>(kd.support[j]);
-    rxx(j) = parts.Kxx.at<double>(kd.support[j]);
-    rxy(j) = parts.Kxy.at<double>(kd.support[j]);
-    ryy(j) = parts.Kyy.at<double>(kd.support[j]);
+    int col = 0;
+    for (const cv::Mat* d : {&parts.Kdx, &parts.Kdy, &parts.Kxx, &parts.Kxy, &parts.Kyy})
+      derivatives(j, col++) = d->at<double>(kd.support[j]);
   }
   kd.A.resize(n, m);
   kd.u.resize(n);
@@ -187,11 +185,16 @@ void fillDesign(const Samples& s, const cv::Mat& g, const cv::Mat& K, const Blur
     kd.fold[r] = s.fold[i];
     for (int j = 0; j < m; ++j)  // convolve(): out(p) = Σ_j K(j) in(p − (j − c))
       kd.A(r, j) = w * g.at<double>(p.y - (kd.support[j].y - cy), p.x - (kd.support[j].x - cx));
-    const double u = kd.u(r), v = kd.v(r), dx = kd.A.row(r).dot(rx), dy = kd.A.row(r).dot(ry);
-    kd.shift.row(r) << u * dx, v * dx, u * dy, v * dy;
-    // R(u, v) = v² K_xx − 2uv K_xy + u² K_yy
-    kd.roll(r) = v * v * kd.A.row(r).dot(rxx) - 2 * u * v * kd.A.row(r).dot(rxy) + u * u * kd.A.row(r).dot(ryy);
   }
+  // Each row's footprint against the derivatives: the shift field's and the roll term's columns.
+  const Eigen::MatrixXd a = kd.A * derivatives;
+  const Eigen::ArrayXd u = kd.u.array(), v = kd.v.array();
+  kd.shift.col(0) = (u * a.col(0).array()).matrix();
+  kd.shift.col(1) = (v * a.col(0).array()).matrix();
+  kd.shift.col(2) = (u * a.col(1).array()).matrix();
+  kd.shift.col(3) = (v * a.col(1).array()).matrix();
+  // R(u, v) = v² K_xx − 2uv K_xy + u² K_yy
+  kd.roll = (v * v * a.col(2).array() - 2 * u * v * a.col(3).array() + u * u * a.col(4).array()).matrix();
 }
 
 BlurTest spatialBlurTest(const Samples& s, const cv::Mat& g, const cv::Mat& K, cv::Point2d centre, double radius,
@@ -283,9 +286,10 @@ void run(EffectSearch& search) {
   e.gain = blur.cmp.gain;
   e.statistic = blur.cmp.z;
   e.detected = blur.cmp.gain >= options.min_gain && blur.cmp.z >= options.min_z;
-  BlurTest roll_alone = blur;  // the corner's change from the roll term alone
+  BlurTest roll_alone = blur;  // the corner's change from the roll term alone (no first-order terms, no shift)
   roll_alone.Kx = cv::Mat::zeros(blur.Kx.size(), CV_64F);
   roll_alone.Ky = roll_alone.Kx;
+  roll_alone.shift = {};
   const cv::Mat centre_kernel = kernelAt(blur, 0, 0);
   e.parameters = {{"variation", blur.variation},
                   {"roll", blur.roll},
