@@ -640,10 +640,11 @@ PairCalibrationResult calibrateVivoPairWithoutBand(const fs::path& dir, int i) {
 // The effect search's free exposure ratio is linearised at the pair's r; on the vivo X6S pair 3 (EXIF 6.25, the
 // images' own r 1.96) it ran away to 0.0027 and the report named an exposure-ratio mismatch "r 0.0027". A ratio the
 // fitter itself would not consider (crf_fitter.hpp) is not named; a named mismatch always carries one it would.
+// (Since stop 50 no pair's free ratio runs away: the runaways followed the settle rounds of an offset named from a
+// flattened φ re-fit, which the next test checks is no longer considered.)
 TEST(CalibrateRealPairs, EffectSearchNamesNoExposureRatioOutsideTheFittersRange) {
   const fs::path dir = test::sharedData() / "pairs" / "vivo_x6s";
   if (test::sharedData().empty() || !fs::exists(dir)) GTEST_SKIP() << "../shared/data absent";
-  bool runaway_seen = false;
   for (int i = 1; i <= 3; ++i) {
     const std::string n = std::to_string(i);
     const PairCalibrationResult result = calibrateVivoPairWithoutBand(dir, i);
@@ -655,12 +656,36 @@ TEST(CalibrateRealPairs, EffectSearchNamesNoExposureRatioOutsideTheFittersRange)
       EXPECT_TRUE(in_range) << "pair " << n << ": " << entry->detail;
     }
     if (!in_range) {
-      runaway_seen = true;
       EXPECT_FALSE(entry->detected) << "pair " << n << ": " << entry->detail;
       EXPECT_NE(entry->detail.find("not a ratio"), std::string::npos) << entry->detail;
     }
   }
-  EXPECT_TRUE(runaway_seen) << "pair 3's search no longer runs away: this test then checks only named ratios";
+}
+
+// On the three vivo X6S pairs the effect search's linearised φ re-fits (four EMoR terms) go flat over the data:
+// measured before stop 50, every level model's re-fit was nearly constant over 75–100 % of B's levels in some
+// channel where the base fit's φ is not, and black_level_offset was named at z 53, 11 and 6 with a re-fitted φ equal
+// to 0 up to x = 0.5 (its corrected refit then failed on every pair: "every pixel is saturated or censored"). A
+// re-fit flat over the data shrinks the floored residuals with it: no explanation. With such re-fits not considered
+// (the verdict's flat rule, flattenedChannel), no level effect and no ratio mismatch is named on these pairs; pairs
+// 2 and 3's free r (2.0 and 1.8 against EXIF 6.25, the shots' brightness siding with EXIF) says why it is not one.
+TEST(CalibrateRealPairs, PhonePairsNameNoEffectFromAPhiRefitFlatOverTheData) {
+  const fs::path dir = test::sharedData() / "pairs" / "vivo_x6s";
+  if (test::sharedData().empty() || !fs::exists(dir)) GTEST_SKIP() << "../shared/data absent";
+  int ratio_flat = 0;
+  for (int i = 1; i <= 3; ++i) {
+    const std::string n = std::to_string(i);
+    const PairCalibrationResult result = calibrateVivoPairWithoutBand(dir, i);
+    for (const EffectEntry& e : result.effects.entries) {
+      // Not level models: the noise law is on I itself, the varying blur a check of the kernel.
+      if (e.name == "signal_dependent_noise" || e.name == "spatially_varying_blur") continue;
+      EXPECT_FALSE(e.detected) << "pair " << n << ": " << e.name << ": " << e.detail;
+    }
+    const EffectEntry* ratio = result.effects.find("exposure_ratio_mismatch");
+    ASSERT_NE(ratio, nullptr);
+    ratio_flat += ratio->detail.find("phi re-fit is nearly constant over the data") != std::string::npos;
+  }
+  EXPECT_EQ(ratio_flat, 2) << "pairs 2 and 3's free r is no longer set aside for a flat re-fit";
 }
 
 // vivo X6S pair 1 (a 0.84 px blur): r is held at EXIF (3.125) by the small-blur rule, since the blur cannot separate

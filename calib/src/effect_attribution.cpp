@@ -10,6 +10,7 @@
 #include <limits>
 #include <optional>
 
+#include "crfcal/channel_verdict.hpp"
 #include "effect_problem.hpp"
 #include "parallel_jobs.hpp"
 
@@ -40,9 +41,11 @@ std::vector<Candidate> levelCandidates(const EffectSearch& search, const Problem
     Candidate c{effect.name,
                 problem.assemble(extended[i], true, {std::move(parts[i][0]), std::move(parts[i][1])},
                                  std::move(parts[i][2])),
-                {}, false, false};
+                {}, false, false, {}};
     c.cmp = effect.test(search, base_eval, c.eval);
     c.plausible = physical(extended[i], c.eval, search.nc, search.terms);
+    if (c.plausible) c.flattened = flattenedChannel(search, problem, extended[i], c.eval);
+    c.plausible = c.plausible && c.flattened.empty();
     c.passes = c.plausible && c.cmp.gain >= search.options.min_gain && c.cmp.z >= search.options.min_z;
     out[i] = std::move(c);
   });
@@ -52,6 +55,25 @@ std::vector<Candidate> levelCandidates(const EffectSearch& search, const Problem
     candidates.push_back(std::move(*out[i]));
   }
   return candidates;
+}
+
+std::string flattenedChannel(const EffectSearch& search, const Problem& problem, const Spec& spec,
+                             const Evaluation& ev) {
+  const VerdictOptions verdict;  // what the verdict calls a flat curve, and the fraction it tolerates
+  for (int c = 0; c < search.nc; ++c) {
+    const Samples& s = problem.samples()[static_cast<std::size_t>(c)];
+    if (!ev.full[c].ok || s.size() == 0) continue;
+    std::vector<double> levels = s.level;
+    const std::size_t tail = levels.size() / 1000;
+    std::nth_element(levels.begin(), levels.begin() + tail, levels.end());
+    const double lo = levels[tail];
+    std::nth_element(levels.begin(), levels.end() - 1 - tail, levels.end());
+    const std::pair<double, double> covered{lo, levels[levels.size() - 1 - tail]};
+    const std::vector<double> refit = adjustedPhi(s.phi, coefficients(spec, ev.full[c], c, search.nc, search.terms).alpha);
+    if (flatFraction(refit, covered, verdict) >= flatFraction(s.phi, covered, verdict) + verdict.max_flat_fraction)
+      return search.in.channels[static_cast<std::size_t>(c)];
+  }
+  return {};
 }
 
 Comparison headToHead(const EffectSearch& search, const Evaluation& runner_up, const Evaluation& winner) {

@@ -473,9 +473,20 @@ struct Candidate {
   std::string name;
   Evaluation eval;         // held-out errors of the model with this effect
   Comparison cmp;          // its own test against the model without it
-  bool plausible = false;  // physical parameters (physical())
+  bool plausible = false;  // physical parameters (physical()) and a φ re-fit that is not flattened
   bool passes = false;     // plausible and its own test passed (min_gain, min_z)
+  std::string flattened;   // the channel whose φ re-fit this model flattened (flattenedChannel); empty: none
 };
+
+// The first channel whose φ re-fit under `spec` (the fit on all samples in `ev`) is flat — the verdict's rule
+// (flatFraction, channel_verdict.hpp: a local exponent below 0.1 or a rise under a tenth of any real curve's) — over
+// at least the verdict's max_flat_fraction more of the samples' levels of B (0.1 % tails dropped) than φ̂ itself;
+// empty when none. No real inverse response is nearly constant over data, and a re-fit that flattens φ there
+// shrinks the floored residuals (the weights 1/max(φ', min_derivative)) with it: on the real vivo X6S pairs every
+// level model's re-fit was flat over 75–100 % of the data where φ̂ was not, and black_level_offset was named at z 53,
+// 11 and 6 with a re-fitted φ equal to 0 up to x = 0.5 (docs/RESULTS.md#effects-flat-refit).
+std::string flattenedChannel(const EffectSearch& search, const Problem& problem, const Spec& spec,
+                             const Evaluation& ev);
 
 // Every applicable level effect not in `base`, added to it and evaluated on `problem` (the search's own, or one
 // around another φ on the same samples), with its own test against `base_eval`.

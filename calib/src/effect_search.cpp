@@ -85,7 +85,11 @@ std::string bestCandidate(EffectSearch& search, Evaluation& best_eval) {
     e.gain = c.cmp.gain;
     e.statistic = c.cmp.z;
     e.parameters["phi_change"] = phiChange(search, levelEffect(c.name), search.current_eval, c.eval);
-    if (!c.plausible) e.detail = "the extended model's parameters are not physical (runaway fit): not considered";
+    if (!c.plausible)
+      e.detail = c.flattened.empty()
+                     ? "the extended model's parameters are not physical (runaway fit): not considered"
+                     : "its phi re-fit is nearly constant over the data in " + c.flattened +
+                           ", where phi is not (the verdict's flat rule): not a physical explanation, not considered";
     if (c.passes && (!winner || c.eval.total < winner->eval.total)) winner = &c;
   }
   if (!winner) return {};

@@ -12,6 +12,7 @@
 #include "crfcal/kernel.hpp"
 #include "crfcal/ratio_evidence.hpp"
 #include "crfcal/simex.hpp"
+#include "effect_problem.hpp"
 #include "pair_stages.hpp"
 
 namespace crfcal::detail {
@@ -64,8 +65,8 @@ std::string conflictWarning(const RatioEvidence& evidence, const std::string& no
 // the nominal ratio, not a level effect's r that explains the misfit.
 bool varyingBlurRefitAlone(const PairCalibrationResult& result) {
   if (result.base_fits.empty() || !namedByEffects(result, "spatially_varying_blur")) return false;
-  for (const char* level : {"vignetting", "black_level_offset", "clipping", "channel_mixing"})
-    if (namedByEffects(result, level)) return false;
+  for (const effect::LevelEffect* level : effect::levelEffects())
+    if (namedByEffects(result, level->name)) return false;
   return true;
 }
 
