@@ -69,7 +69,8 @@ std::string flattenedChannel(const EffectSearch& search, const Problem& problem,
     const double lo = levels[tail];
     std::nth_element(levels.begin(), levels.end() - 1 - tail, levels.end());
     const std::pair<double, double> covered{lo, levels[levels.size() - 1 - tail]};
-    const std::vector<double> refit = adjustedPhi(s.phi, coefficients(spec, ev.full[c], c, search.nc, search.terms).alpha);
+    const std::vector<double> refit =
+        adjustedPhi(s.phi, coefficients(spec, ev.full[c], c, search.nc, search.terms).alpha);
     if (flatFraction(refit, covered, verdict) >= flatFraction(s.phi, covered, verdict) + verdict.max_flat_fraction)
       return search.in.channels[static_cast<std::size_t>(c)];
   }

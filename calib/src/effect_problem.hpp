@@ -382,6 +382,9 @@ struct EffectSearch {
   Evaluation current_eval;
   std::vector<std::string> selected;
   std::vector<Coefficients> coef;   // the selected model's parameters (describeSelectedModel)
+  // Why a level effect's model was not considered at the last forward step (not physical; bestCandidate), added
+  // to its entry after the selected model's description.
+  std::map<std::string, std::string> not_considered;
   // B within this margin of saturation_high is treated as saturated (intensity, worst channel; usablePixels).
   double full_scale_margin = 0;
 

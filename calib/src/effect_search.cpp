@@ -85,11 +85,14 @@ std::string bestCandidate(EffectSearch& search, Evaluation& best_eval) {
     e.gain = c.cmp.gain;
     e.statistic = c.cmp.z;
     e.parameters["phi_change"] = phiChange(search, levelEffect(c.name), search.current_eval, c.eval);
-    if (!c.plausible)
-      e.detail = c.flattened.empty()
-                     ? "the extended model's parameters are not physical (runaway fit): not considered"
-                     : "its phi re-fit is nearly constant over the data in " + c.flattened +
-                           ", where phi is not (the verdict's flat rule): not a physical explanation, not considered";
+    if (c.plausible)
+      search.not_considered.erase(c.name);
+    else
+      search.not_considered[c.name] =
+          c.flattened.empty() ? "the extended model's parameters are not physical (runaway fit): not considered"
+                              : "its phi re-fit is nearly constant over the data in " + c.flattened +
+                                    ", where phi is not (the verdict's flat rule): not a physical explanation, not "
+                                    "considered";
     if (c.passes && (!winner || c.eval.total < winner->eval.total)) winner = &c;
   }
   if (!winner) return {};
@@ -219,6 +222,8 @@ void describeSelectedModel(EffectSearch& search) {
     EffectEntry& e = search.entry(effect.name);
     if (effect.in(search.current)) effect.describe(search, search.current, search.current_eval, e);
     else effect.describe(search, extended[i].spec, extended[i], e);
+    const auto why = search.not_considered.find(effect.name);
+    if (why != search.not_considered.end() && !e.detected) e.detail += "; " + why->second;
   }
 }
 
