@@ -2,7 +2,6 @@
 // whose re-fit makes φ nearly constant over the data, where the curve it is linearised around is not, explains the
 // residuals by shrinking them (the floored weights 1/max(φ', min_derivative)), not by a physical effect:
 // flattenedChannel (calib/src/effect_attribution.cpp) names such a channel with the verdict's own flat rule.
-#include <algorithm>
 #include <cmath>
 #include <vector>
 
