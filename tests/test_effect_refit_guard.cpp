@@ -128,6 +128,22 @@ TEST(EffectRefitGuard, RefitIsRejectedWhenTheBasePhiExplainsTheHeldBackPixelsBet
   EXPECT_NE(report.refit_rejected_reason.find("same extended model"), std::string::npos) << report.refit_rejected_reason;
 }
 
+TEST(EffectRefitGuard, RefitThatCannotBeFittedIsReportedAsFailedWithTheFittersReason) {
+  // The offset is named, but the fitter refuses the corrected pair (here: it asks for more usable pixels than the
+  // pair has). The base fit's φ is reported and the report says why no refit was judged; before, report.json had
+  // no trace of the refit at all (the vivo X6S pairs, docs/RESULTS.md#effects-flat-refit).
+  PlantedOffset planted;
+  planted.in.fit.min_pixels = planted.in.sharp.at("G").rows * planted.in.sharp.at("G").cols + 1;
+  const EffectReport report = diagnoseEffects(planted.in);
+  ASSERT_NO_FATAL_FAILURE(expectOffsetNamedAndRefitTried(report));
+  EXPECT_TRUE(report.refit_failed) << report.summary();
+  EXPECT_FALSE(report.refit_adopted);
+  EXPECT_TRUE(report.fits.empty());
+  EXPECT_NE(report.refit_rejected_reason.find("channel G"), std::string::npos) << report.refit_rejected_reason;
+  EXPECT_NE(report.refit_rejected_reason.find("usable edge pixels"), std::string::npos) << report.refit_rejected_reason;
+  EXPECT_NE(report.summary().find("refit with the extended model failed"), std::string::npos) << report.summary();
+}
+
 // Above every level the search's samples read: the largest B of its usable pixels, and of I within the kernel's
 // reach of them (unit levels).
 double topOfTheData(const effect::EffectSearch& search) {

@@ -30,6 +30,7 @@ Problem fixedRatioProblem(const EffectSearch& search) {
     const auto fixed_fits =
         corrected ? refitPair(search, current, search.curves, search.coef, search.current_eval.full, false, false,
                               in.nominal_ratio)
+                        .fits
                   : std::map<std::string, CrfFitResult>{};
     for (int c = 0; c < nc; ++c) {
       if (corrected) {

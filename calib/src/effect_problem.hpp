@@ -395,6 +395,9 @@ struct EffectSearch {
   // exposure_ratio_mismatch's attribution: the level effect that explains the misfit with r at EXIF's value, to be
   // named instead of a ratio mismatch (effect_exposure_ratio_mismatch.cpp; empty: none).
   std::string ratio_explained_by;
+  // Why the selected model's refit could not be fitted (refitWithSelectedModel; empty: it was, or was not asked
+  // for); guardRefit reports it.
+  std::string refit_failure;
 
   EffectEntry& entry(const std::string& name);
   Problem problemAround(const std::vector<Curve>& phi, const std::vector<double>& r) const;
@@ -405,12 +408,15 @@ struct EffectSearch {
 bool prepareProblem(EffectSearch& search);
 
 // One correction + refit with the extended model `spec`: the jointly re-fitted φ_ext = φ + Σ α_k h_k and the
-// parameters correct the pair, fitInverseCrf refits φ (same options; r fixed when fixed_ratio > 0). Empty on
-// failure. with_blur: per-tile fits with the first-order kernel; with_noise: σ(v) to the fitter.
-std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const Spec& spec,
-                                              const std::vector<Curve>& cur, const std::vector<Coefficients>& cf,
-                                              const std::vector<ChannelFit>& ff, bool with_blur, bool with_noise,
-                                              double fixed_ratio);
+// parameters correct the pair, fitInverseCrf refits φ (same options; r fixed when fixed_ratio > 0).
+// with_blur: per-tile fits with the first-order kernel; with_noise: σ(v) to the fitter.
+struct PairRefit {
+  std::map<std::string, CrfFitResult> fits;  // φ per channel; empty when a channel could not be refitted
+  std::string failure;                       // why not (the channel and the fitter's message); empty on success
+};
+PairRefit refitPair(const EffectSearch& search, const Spec& spec, const std::vector<Curve>& cur,
+                    const std::vector<Coefficients>& cf, const std::vector<ChannelFit>& ff, bool with_blur,
+                    bool with_noise, double fixed_ratio);
 
 // The refit guard (effect_refit_guard.cpp): report.fits (the selected model's refit) is kept only when the refit is
 // physically plausible and explains the held-back pixels at least as well as the base fit; else it moves to

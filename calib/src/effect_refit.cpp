@@ -2,6 +2,8 @@
 // where the reported φ of a detected effect comes from (effects.hpp).
 #include <algorithm>
 #include <cmath>
+#include <exception>
+#include <string>
 
 #include "crfcal/error.hpp"
 #include "crfcal/joint_crf_fit.hpp"
@@ -11,10 +13,23 @@
 #include "effect_problem.hpp"
 #include "image_units.hpp"
 #include "irradiance_kernel_inputs.hpp"
+#include "parallel_jobs.hpp"
 
 namespace crfcal::effect {
 
 namespace {
+
+// Whether a parallel job threw InvalidInput (its reason in *reason): a fit or kernel the data refuse. Any other
+// exception is rethrown, as the serial loop let it through.
+bool refusedByTheData(const std::exception_ptr& error, std::string* reason = nullptr) {
+  if (!error) return false;
+  try {
+    std::rethrow_exception(error);
+  } catch (const InvalidInput& refused) {
+    if (reason) *reason = refused.reason();
+  }
+  return true;
+}
 
 CrfFitResult averageFits(const std::vector<CrfFitResult>& fits) {
   CrfFitResult out = fits.front();
@@ -58,14 +73,12 @@ std::vector<cv::Mat> ownTileKernels(const EffectSearch& search, const PairCorrec
   KernelEstimationOptions options = search.in.kernel_options;
   options.throw_on_size_limit = false;
   options.progress = nullptr;
-  std::vector<cv::Mat> kernels;
-  for (const cv::Rect& t : search.layout.tiles) {
-    try {
-      kernels.push_back(estimateKernel(i_irr, pair.Y[gi], {t}, search.p.usable, options, weights).kernel);
-    } catch (const InvalidInput&) {
-      kernels.emplace_back();
-    }
-  }
+  const std::vector<cv::Rect>& tiles = search.layout.tiles;
+  std::vector<cv::Mat> kernels(tiles.size());
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(static_cast<int>(tiles.size()), [&](int i) {
+    kernels[i] = estimateKernel(i_irr, pair.Y[gi], {tiles[i]}, search.p.usable, options, weights).kernel;
+  });
+  for (const std::exception_ptr& error : errors) refusedByTheData(error);  // that tile's kernel stays empty
   return kernels;
 }
 
@@ -96,20 +109,23 @@ JointFitPair tilePair(const EffectSearch& search, const cv::Rect& t, const cv::M
 // fit refuses the tiles.
 CrfFitResult perTileFit(const EffectSearch& search, const std::vector<cv::Mat>& kernels, const cv::Mat& I,
                         const cv::Mat& B, const CrfFitOptions& fo) {
+  const int n = static_cast<int>(search.layout.tiles.size());
+  std::vector<JointFitPair> all_tiles;
+  for (int i = 0; i < n; ++i) all_tiles.push_back(tilePair(search, search.layout.tiles[i], kernels[i], I, B, fo));
+  std::vector<CrfFitResult> all_fits(static_cast<std::size_t>(n));
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(n, [&](int i) {
+    all_fits[i] = fitInverseCrf(all_tiles[i].sharp, all_tiles[i].blurred, all_tiles[i].kernel, all_tiles[i].options);
+  });
   std::vector<CrfFitResult> tile_fits;
   std::vector<JointFitPair> tiles;
   double log_ratio = 0, weight = 0;
-  for (std::size_t i = 0; i < search.layout.tiles.size(); ++i) {
-    JointFitPair tile = tilePair(search, search.layout.tiles[i], kernels[i], I, B, fo);
-    try {
-      tile_fits.push_back(fitInverseCrf(tile.sharp, tile.blurred, tile.kernel, tile.options));
-    } catch (const InvalidInput&) {
-      continue;  // a tile without edges: skipped
-    }
+  for (int i = 0; i < n; ++i) {  // in tile order, as the serial loop summed them
+    if (refusedByTheData(errors[i])) continue;  // a tile without edges: skipped
+    tile_fits.push_back(std::move(all_fits[i]));
     const double w = std::max(1, tile_fits.back().pixels.used);
     log_ratio += w * std::log(tile_fits.back().ratio);
     weight += w;
-    tiles.push_back(std::move(tile));
+    tiles.push_back(std::move(all_tiles[i]));
   }
   if (tile_fits.empty()) throw InvalidInput("no tile could be fitted");
   const double ratio = std::exp(log_ratio / weight);
@@ -142,10 +158,9 @@ CrfFitOptions refitOptions(const EffectSearch& search, const Coefficients& cf, c
 
 }  // namespace
 
-std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const Spec& spec,
-                                              const std::vector<Curve>& cur, const std::vector<Coefficients>& cf,
-                                              const std::vector<ChannelFit>& ff, bool with_blur, bool with_noise,
-                                              double fixed_ratio) {
+PairRefit refitPair(const EffectSearch& search, const Spec& spec, const std::vector<Curve>& cur,
+                    const std::vector<Coefficients>& cf, const std::vector<ChannelFit>& ff, bool with_blur,
+                    bool with_noise, double fixed_ratio) {
   const int nc = search.nc;
   const EffectInputs& in = search.in;
   // φ_ext: the jointly re-fitted φ of the extended model; the corrections use it.
@@ -160,8 +175,9 @@ std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const 
   for (const LevelEffect* effect : levelEffects())
     if (effect->in(spec)) effect->correct(pair);
   const std::vector<cv::Mat> tile_kernels = with_blur ? ownTileKernels(search, pair) : std::vector<cv::Mat>{};
-  std::map<std::string, CrfFitResult> fits;
-  for (int c = 0; c < nc; ++c) {
+  // The channels' fits are independent: in parallel, as the base fits are (pair_stage_fit.cpp).
+  std::vector<CrfFitResult> channel_fits(static_cast<std::size_t>(nc));
+  const std::vector<std::exception_ptr> errors = detail::runInParallel(nc, [&](int c) {
     const cv::Mat Bc = store(ext[c].curve.forward(cv::max(cv::min(pair.Y[c], 1.0), 0.0)), search.p.depth[c]);
     const cv::Mat& Ic = pair.sharp[c];
     CrfFitOptions& fo = pair.fit_options[c];
@@ -169,15 +185,17 @@ std::map<std::string, CrfFitResult> refitPair(const EffectSearch& search, const 
       const int L = std::max(naturalLevels(Ic), naturalLevels(Bc));  // the fitter's level grid
       fo.noise_sigma_per_level = noiseSigmaPerLevel(search.noise_level[c], search.noise_sigma[c], L);
     }
-    try {
-      fits[in.channels[c]] =
-          with_blur ? perTileFit(search, tile_kernels, Ic, Bc, fo) : fitInverseCrf(Ic, Bc, search.K, fo);
-    } catch (const InvalidInput&) {
-      fits.clear();
-      break;
+    channel_fits[c] = with_blur ? perTileFit(search, tile_kernels, Ic, Bc, fo) : fitInverseCrf(Ic, Bc, search.K, fo);
+  });
+  PairRefit refit;
+  std::string reason;
+  for (int c = 0; c < nc; ++c)  // the first channel that fails, as a serial loop would meet it
+    if (refusedByTheData(errors[c], &reason)) {
+      refit.failure = "channel " + in.channels[c] + ": " + reason;
+      return refit;
     }
-  }
-  return fits;
+  for (int c = 0; c < nc; ++c) refit.fits[in.channels[c]] = std::move(channel_fits[c]);
+  return refit;
 }
 
 }  // namespace crfcal::effect

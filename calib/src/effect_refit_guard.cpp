@@ -172,6 +172,12 @@ std::string heldoutReason(EffectSearch& search, const std::vector<Curve>& base_c
 
 void guardRefit(EffectSearch& search) {
   EffectReport& report = search.report;
+  if (!search.refit_failure.empty()) {  // asked for and not fitted: said, not silent (report.json effects_refit)
+    report.refit_tried = true;
+    report.refit_failed = true;
+    report.refit_rejected_reason = "the corrected pair could not be refitted (" + search.refit_failure + ")";
+    return;
+  }
   if (report.fits.empty()) return;
   report.refit_tried = true;
   const EffectInputs& in = search.in;

@@ -115,6 +115,7 @@ double settleRound(EffectSearch& search) {
   const auto fits = search.options.refit
                         ? refitPair(search, search.current, search.curves, cc, search.current_eval.full, false, false,
                                     0.0)
+                              .fits
                         : std::map<std::string, CrfFitResult>{};
   for (int c = 0; c < nc; ++c) {
     if (!search.current_eval.full[c].ok) continue;
@@ -262,9 +263,13 @@ bool refitWithSelectedModel(EffectSearch& search) {
   std::vector<Coefficients> cf = search.coef;
   std::vector<ChannelFit> ff = search.current_eval.full;
   for (int round = 0; round < search.options.refit_rounds; ++round) {
-    const auto fits = refitPair(search, current, cur, cf, ff, blur_refit, noise_refit, 0.0);
-    if (fits.empty()) break;
-    search.report.fits = fits;
+    PairRefit refit = refitPair(search, current, cur, cf, ff, blur_refit, noise_refit, 0.0);
+    if (refit.fits.empty()) {
+      // A later round's failure keeps the earlier round's refit; a first round's is reported (the guard records it).
+      if (round == 0) search.refit_failure = std::move(refit.failure);
+      break;
+    }
+    search.report.fits = std::move(refit.fits);
     if (round + 1 == search.options.refit_rounds || !level_refit) break;
     // Re-estimate the parameters (and φ_ext) with the refitted φ.
     for (int c = 0; c < nc; ++c) cur[c] = makeCurve(search.report.fits.at(in.channels[c]).inverse_crf);
@@ -320,7 +325,10 @@ void confirmRatioMismatch(EffectSearch& search, bool ratio_only_refit) {
   e.detail += fmt("; not named: the full fit from r %.4g returned r %.4g (%+.1f%% from EXIF), within EXIF's tolerance "
                   "or on its other side",
                   a, full_ratio, 100 * rel_full);
-  if (ratio_only_refit) search.report.fits.clear();
+  if (ratio_only_refit) {  // the refit made for the ratio alone is discarded, and so is its failure
+    search.report.fits.clear();
+    search.refit_failure.clear();
+  }
 }
 
 }  // namespace

@@ -76,6 +76,8 @@ std::string EffectReport::summary() const {
                   "\n  phi refitted with the extended model (held-out error %.3g vs the base fit's %.3g",
                   heldout_error_refit, heldout_error_base_fit);
     s << buffer << same_model << ")";
+  } else if (refit_failed) {
+    s << "\n  refit with the extended model failed, the base fit's phi kept: " << refit_rejected_reason;
   } else if (refit_tried) {
     char buffer[200];
     std::snprintf(buffer, sizeof buffer, " (held-out error of the refit %.3g, of the base fit %.3g",

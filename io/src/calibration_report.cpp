@@ -293,11 +293,14 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
   extra["registration"] = registrationJson(result.registration);
   if (result.effects.refit_tried) {  // the refit guard (effects.hpp): whose φ is reported and why
     extra["effects_refit"] = {{"adopted", result.effects.refit_adopted},
-                              {"rejected_reason", result.effects.refit_rejected_reason},
-                              {"heldout_error_base_fit", result.effects.heldout_error_base_fit},
-                              {"heldout_error_refit", result.effects.heldout_error_refit},
-                              {"heldout_error_base_fit_selected_model",
-                               result.effects.heldout_error_base_fit_selected_model}};
+                              {"failed", result.effects.refit_failed},
+                              {"rejected_reason", result.effects.refit_rejected_reason}};
+    if (!result.effects.refit_failed) {  // a failed refit was never judged on the held-back pixels
+      extra["effects_refit"]["heldout_error_base_fit"] = result.effects.heldout_error_base_fit;
+      extra["effects_refit"]["heldout_error_refit"] = result.effects.heldout_error_refit;
+      extra["effects_refit"]["heldout_error_base_fit_selected_model"] =
+          result.effects.heldout_error_base_fit_selected_model;
+    }
     if (!result.effects.refit_adopted)
       report.warnings.push_back("effects: the extended model's refit was rejected (" +
                                 result.effects.refit_rejected_reason + "); the base fit's phi is reported");

@@ -82,7 +82,8 @@
 // parameters fitted on one fold and measured on the other — is not larger than the base fit's. Otherwise the base
 // fit's φ is reported, the effects stay named and the reason is recorded (refit_rejected_reason). A spatially
 // varying blur's per-tile refit is judged, with the base fit's φ, under the varying kernel (the residual problem
-// holds one kernel); beside a level effect by the plausibility checks only.
+// holds one kernel); beside a level effect by the plausibility checks only. A refit that cannot be fitted at all
+// (the corrected pair leaves the fitter too few pixels) is reported as failed, with the fitter's reason.
 // Code: the search's stages in effect_search.cpp, the shared residual problem in effect_problem.hpp, one file per
 // effect test (effect_<name>.cpp); adding an effect is one file, one registry line and its name
 // in effectNames() (effect_problem.hpp says how).
@@ -149,8 +150,9 @@ struct EffectReport {
   // plausible, explains the held-back pixels at least as well as the base fit (each φ under its own model), and
   // at least as well as the base fit's φ does under the same extended model (the refitted φ, not only the effect,
   // must explain them).
-  bool refit_tried = false;                      // a detected effect asked for a refit and the refit succeeded
+  bool refit_tried = false;                      // a detected effect asked for a refit
   bool refit_adopted = false;                    // the refit's φ is reported (fits non-empty)
+  bool refit_failed = false;                     // the corrected pair could not be refitted (no held-out errors)
   std::string refit_rejected_reason;             // why the base fit was kept (empty when adopted or not tried)
   double heldout_error_base_fit = 0;             // held-out Σe² / n: base φ and r under the base model
   double heldout_error_refit = 0;                // held-out Σe² / n: refitted φ and r under the selected model
