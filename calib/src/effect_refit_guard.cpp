@@ -175,7 +175,7 @@ void guardRefit(EffectSearch& search) {
   if (!search.refit_failure.empty()) {  // asked for and not fitted: said, not silent (report.json effects_refit)
     report.refit_tried = true;
     report.refit_failed = true;
-    report.refit_rejected_reason = "the corrected pair could not be refitted (" + search.refit_failure + ")";
+    report.refit_rejected_reason = "the corrected pair could not be refitted: " + search.refit_failure;
     return;
   }
   if (report.fits.empty()) return;

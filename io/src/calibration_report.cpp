@@ -302,7 +302,8 @@ CalibrationReport calibrationReport(const PairCalibrationResult& result, const C
           result.effects.heldout_error_base_fit_selected_model;
     }
     if (!result.effects.refit_adopted)
-      report.warnings.push_back("effects: the extended model's refit was rejected (" +
+      report.warnings.push_back(std::string("effects: the extended model's refit ") +
+                                (result.effects.refit_failed ? "failed" : "was rejected") + " (" +
                                 result.effects.refit_rejected_reason + "); the base fit's phi is reported");
   }
   addFitDetails(result, extra);
