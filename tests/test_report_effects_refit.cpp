@@ -5,7 +5,6 @@
 
 #include <algorithm>
 #include <string>
-#include <vector>
 
 #include "crfcal/io/calibration_report.hpp"
 #include "crfcal/io/pair_input.hpp"
