@@ -50,6 +50,12 @@ struct JointBenchArgs {
   double contrast = 0.35;
   std::string joint_ratio = "pair";  // the r each pair holds in the joint fit: pair (its single-pair r) or exif
   bool band_fixed_ratio = false;     // the joint band's replicates hold r (no draws from its uncertainty)
+  int joint_ratio_rounds = JointCalibrationOptions{}.ratio_rounds;  // rounds moving each r to its r at the joint φ
+  // An additive irradiance offset (fraction of full scale) in the blurred shot of pair `offset_pair` (1-based) of
+  // every curve: a flare or black level of one shot, which that pair alone absorbs into φ + c / (r − 1) and the
+  // joint fit cannot (JointPairSummary::joint_misfit). 0: none.
+  double offset = 0;
+  int offset_pair = 1;
   // The joint band above the data (CurveBandOptions::above_data_prior): "learned" (the prior learned from the bundled
   // camera curves without the case's camera, as `calibrate` uses it with all of them) or "bounds" (exponent bounds).
   std::string band_above = "learned";
@@ -97,6 +103,8 @@ struct Totals {
   double best_full = 0, best_union = 0, best_shape = 0;        // the best single pair of each curve
   BandScore band;
   int band_curves = 0;
+  std::vector<double> largest_misfit;  // per curve: the largest of its pairs' misfits
+  int disagreeing = 0;                 // curves whose joint verdict names the pairs' disagreement
 };
 
 class JointRun {
@@ -116,6 +124,7 @@ class JointRun {
       results.push_back(calibrateCase(photos[p % photos.size()], truth_model, kernel_spec, p, dir));
       pairs_json.push_back({{"kernel", kernel_spec}, {"exposure", pairExposure(p, args.pairs)},
                             {"ratio", pairRatio(p, args.pairs)}, {"ratio_fitted", results.back().fits.at("G").ratio},
+                            {"blurred_offset", p + 1 == args.offset_pair ? args.offset : 0.0},
                             {"covered_G", results.back().covered_range.at("G")},
                             {"inverse_crf_G", results.back().fits.at("G").inverse_crf}});
     }
@@ -124,6 +133,7 @@ class JointRun {
     options.ratio_source = args.joint_ratio == "exif" ? JointCalibrationOptions::RatioSource::nominal
                                                       : JointCalibrationOptions::RatioSource::pair_fit;
     options.band_varies_ratio = !args.band_fixed_ratio;
+    options.ratio_rounds = args.joint_ratio_rounds;
     // leave one camera out: the truth's camera is not among the prior's training curves
     if (args.band_above == "learned") options.band.above_data_prior = io::learnPriorFromCameraCurves({name});
     const JointCalibrationResult joint = calibrateJointly(results, options);
@@ -139,13 +149,22 @@ class JointRun {
                     100.0 * b.above_hits / std::max(1, b.above));
       band_text = text;
     }
+    band_text += std::string(band_text == "-" ? "" : "; ") + "verdict " + toString(joint.verdicts.at("G").level);
     table << row(name, "joint", j, band_text);
     double best_full = 1e9, best_union = 1e9, best_shape = 1e9;
     for (int p = 0; p < args.pairs; ++p) {
       const Scores s = score(results[p].fits.at("G").inverse_crf, truth, union_range, results[p].covered_range.at("G"));
-      char extra[120];
-      std::snprintf(extra, sizeof extra, "%s, exposure %.2f, r %.0f (fitted %.3f)", kKernels[p % std::size(kKernels)],
-                    pairExposure(p, args.pairs), pairRatio(p, args.pairs), results[p].fits.at("G").ratio);
+      const JointPairSummary& in_joint = joint.pairs[p];
+      const auto misfit = in_joint.joint_misfit.find("G");
+      char extra[200];
+      std::snprintf(extra, sizeof extra,
+                    "%s, exposure %.2f, r %.0f (fitted %.3f; joint fit at %.3f; at the joint phi %.3f), misfit %.2fx",
+                    kKernels[p % std::size(kKernels)], pairExposure(p, args.pairs), pairRatio(p, args.pairs),
+                    results[p].fits.at("G").ratio, in_joint.ratio.at("G"), in_joint.ratio_at_joint_phi.at("G"),
+                    misfit == in_joint.joint_misfit.end() ? std::nan("") : misfit->second);
+      pairs_json[p]["ratio_at_joint_phi"] = in_joint.ratio_at_joint_phi.at("G");
+      pairs_json[p]["ratio_joint_fit"] = in_joint.ratio.at("G");
+      if (misfit != in_joint.joint_misfit.end()) pairs_json[p]["joint_misfit"] = misfit->second;
       table << row(name, "pair " + std::to_string(p + 1), s, extra);
       totals.single_full += s.union_range.rmse / args.pairs;
       totals.single_union += s.union_range.rmse_covered / args.pairs;
@@ -154,6 +173,12 @@ class JointRun {
       best_union = std::min(best_union, s.union_range.rmse_covered);
       best_shape = std::min(best_shape, s.union_range.rmse_covered_aligned);
     }
+    double largest = 0;
+    for (const JointPairSummary& pair : joint.pairs)
+      if (const auto m = pair.joint_misfit.find("G"); m != pair.joint_misfit.end()) largest = std::max(largest, m->second);
+    totals.largest_misfit.push_back(largest);
+    for (const std::string& reason : joint.verdicts.at("G").reasons)
+      if (reason.find("the pairs disagree") != std::string::npos) ++totals.disagreeing;
     ++totals.curves;
     totals.joint_full += j.union_range.rmse, totals.joint_union += j.union_range.rmse_covered;
     totals.joint_shape += j.union_range.rmse_covered_aligned;
@@ -162,6 +187,8 @@ class JointRun {
                             {"union_G", union_range}, {"joint_rmse_G", j.union_range.rmse},
                             {"joint_rmse_G_union", j.union_range.rmse_covered},
                             {"joint_shape_rmse_G_union", j.union_range.rmse_covered_aligned},
+                            {"joint_verdict_G", toString(joint.verdicts.at("G").level)},
+                            {"joint_verdict_reasons_G", joint.verdicts.at("G").reasons},
                             {"summary", joint.summary()}});
     progress.done(row(name, "joint", j, band_text));
   }
@@ -178,6 +205,17 @@ class JointRun {
                   totals.single_full / n, totals.single_union / n, totals.single_shape / n, totals.best_full / n,
                   totals.best_union / n, totals.best_shape / n);
     std::string text = table.str() + line;
+    std::string misfits;
+    for (const double m : totals.largest_misfit) {
+      char value[32];
+      std::snprintf(value, sizeof value, "%s%.2f", misfits.empty() ? "" : " / ", m);
+      misfits += value;
+    }
+    std::snprintf(line, sizeof line,
+                  "\nPairs' misfit (the joint phi's energy on a pair's rows over its own phi's): largest per curve %s; "
+                  "the joint verdict names the pairs' disagreement (a misfit above %.3g) for %d of %d curves\n",
+                  misfits.c_str(), JointCalibrationOptions{}.max_joint_misfit, totals.disagreeing, totals.curves);
+    text += line;
     if (totals.band_curves > 0) {
       const BandScore& b = totals.band;
       std::snprintf(line, sizeof line,
@@ -211,6 +249,7 @@ class JointRun {
     ho.shift_y = 4.3 * std::sin(angle);
     ho.rotation_deg = p % 2 ? 0.4 : -0.4;
     ho.seed = static_cast<std::uint64_t>(p + 1);
+    if (p + 1 == args.offset_pair) ho.blurred_offset = args.offset;
     cv::Mat scene;
     photo.convertTo(scene, -1, args.contrast, 127.5 * (1 - args.contrast));  // its range about mid grey
     const HandheldPair pair = makeHandheldPair(scene, truth, io::kernelFromSpec(kernel_spec), ho);
@@ -256,6 +295,9 @@ int runJointBench(const JointBenchArgs& args) {
       crfs.push_back("table:" + (io::samplesDirectory() / "camera_curves" / (std::string(c) + ".csv")).string());
   std::vector<fs::path> inputs(images.begin(), images.end());
   for (const auto& spec : crfs) inputs.push_back(io::specInput(spec));
+  if (args.offset != 0 && args.offset_pair > args.pairs)
+    throw Error("--offset-pair " + std::to_string(args.offset_pair) + " names no pair (--pairs " +
+                std::to_string(args.pairs) + ")", ErrorSubject::options);
   io::OutputDirectory out(args.output, {"bench joint", inputs, args.force});
   std::vector<cv::Mat> photos;
   for (const auto& path : images) {
@@ -268,7 +310,9 @@ int runJointBench(const JointBenchArgs& args) {
   JointRun run(args, out);
   std::ostringstream header;
   header << "Joint fit of " << args.pairs << " semi-real pairs per camera curve (photos, kernels and exposures "
-         << "differ per pair); phi_G against the truth.\n\n| curve | fit | covered G | RMSE [0, 1] | RMSE over the "
+         << "differ per pair); phi_G against the truth.";
+  if (args.offset != 0) header << " Pair " << args.offset_pair << "'s blurred shot has an offset " << args.offset << ".";
+  header << "\n\n| curve | fit | covered G | RMSE [0, 1] | RMSE over the "
          << "union | shape RMSE over the union | notes |\n|---|---|---|---|---|---|---|\n";
   for (const auto& crf : crfs) run.runCurve(crf, photos);
   const std::string text = header.str() + run.finish();
@@ -302,6 +346,20 @@ const BenchRegistration registration(
                          "The r each pair holds in the joint fit: pair (its final single-pair r) or exif (its EXIF r)")
           ->capture_default_str()
           ->check(CLI::IsMember({"pair", "exif"}));
+      command.add_option("--joint-ratio-rounds", args->joint_ratio_rounds,
+                         "Rounds moving each pair's r from that start to the least-squares r of its rows at the joint "
+                         "phi, then refitting phi (0: r held)")
+          ->capture_default_str()
+          ->check(CLI::Range(0, 20));
+      command.add_option("--offset", args->offset,
+                         "An additive irradiance offset (fraction of full scale) in the blurred shot of one pair of "
+                         "each curve (--offset-pair): a flare or black level of that shot alone, which the joint fit "
+                         "shows as that pair's misfit")
+          ->capture_default_str()
+          ->check(CLI::Range(-0.5, 0.5));
+      command.add_option("--offset-pair", args->offset_pair, "The pair (1-based) whose blurred shot gets --offset")
+          ->capture_default_str()
+          ->check(CLI::Range(1, 6));
       command.add_flag("--band-fixed-ratio", args->band_fixed_ratio,
                        "The joint band's replicates hold each pair's r (ablation: no draws from its uncertainty)");
       command.add_option("--band-replicates", args->band_replicates, "Half-sample refits of the joint band (even; 0: none)")

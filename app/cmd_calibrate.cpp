@@ -72,6 +72,7 @@ struct CalibrateArgs {
   // and/or a manifest --pairs FILE; then SHARP BLURRED are not given.
   std::vector<std::pair<std::string, std::string>> pairs;
   std::string pairs_file;
+  int joint_ratio_rounds = -1;  // rounds moving each pair's r to its r at the joint φ (−1: not given, the default)
   bool joint() const { return !pairs.empty() || !pairs_file.empty(); }
 };
 
@@ -326,6 +327,7 @@ int strictExitCode(const CalibrateArgs& args, const PairCalibrationResult& resul
 int runCalibrate(const CalibrateArgs& args) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
+  if (args.joint_ratio_rounds >= 0) throw Error("--joint-ratio-rounds applies to a joint calibration (--pair/--pairs)");
   if (args.threads > 0) cv::setNumThreads(args.threads);
   Progress progress(args.quiet);
   std::map<std::string, double> timings;  // the command's stages (the calibration's own are in its result)
@@ -464,6 +466,7 @@ int runCalibrateJoint(const CalibrateArgs& args) {
   joint_options.model = pair_defaults.fit;
   joint_options.band.replicates = args.band_replicates;
   joint_options.band.above_data_prior = pair_defaults.band.above_data_prior;
+  if (args.joint_ratio_rounds >= 0) joint_options.ratio_rounds = args.joint_ratio_rounds;
   const JointCalibrationResult joint = calibrateJointly(results, joint_options);
   progress.done();
 
@@ -511,6 +514,11 @@ const CommandRegistration registration(
       command.add_option("--pairs", args->pairs_file,
                          "A manifest of pairs fitted jointly: one \"SHARP BLURRED\" a line (.csv or .txt; paths "
                          "relative to the manifest)");
+      command.add_option("--joint-ratio-rounds", args->joint_ratio_rounds,
+                         "With --pair/--pairs: rounds moving each pair's r from its own fit's r to the least-squares "
+                         "r of its data at the joint phi, then refitting phi (0: each pair's r held; default " +
+                             std::to_string(JointCalibrationOptions{}.ratio_rounds) + ", stopping once no r moves)")
+          ->check(CLI::Range(0, 20));
       // SHARP and BLURRED are required unless the pairs come from --pair/--pairs (CLI11's own message and exit).
       command.parse_complete_callback([args] {
         if (args->joint()) return;

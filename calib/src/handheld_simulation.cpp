@@ -25,6 +25,7 @@ void HandheldPairOptions::check() const {
   if (!(ratio > 0)) throw InvalidInput("ratio must be > 0");
   if (!(exposure > 0 && exposure <= 1)) throw InvalidInput("exposure must be in (0, 1]");
   if (noise_gain_sharp < 0 || noise_gain_blurred < 0 || read_noise < 0) throw InvalidInput("noise must be >= 0");
+  if (!(std::abs(blurred_offset) <= 0.5)) throw InvalidInput("blurred_offset must be in [-0.5, 0.5]");
   for (const auto& noise : {sharp_noise, blurred_noise})
     if (noise)
       for (const PoissonGaussian& channel : {noise->red, noise->green, noise->blue})
@@ -78,6 +79,7 @@ HandheldPair makeHandheldPair(const cv::Mat& photo, const ResponseModel& phi, co
       sharp_irr = e / options.ratio;
       blurred_irr = convolve(e, kernel);
     }
+    if (options.blurred_offset != 0) blurred_irr += options.blurred_offset;
     const PoissonGaussian sharp_noise = options.sharp_noise ? channelNoise(*options.sharp_noise, c, planes.size())
                                                             : PoissonGaussian{options.noise_gain_sharp, options.read_noise};
     const PoissonGaussian blurred_noise = options.blurred_noise

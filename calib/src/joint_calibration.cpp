@@ -36,7 +36,7 @@ std::vector<std::string> commonChannels(const std::vector<PairCalibrationResult>
   return channels;
 }
 
-// Channel `c` of every pair as the joint fitter takes it; r held at the pair's final single-pair r or its nominal
+// Channel `c` of every pair as the joint fitter takes it; r starting at the pair's final single-pair r or its nominal
 // one (options.ratio_source).
 std::vector<JointFitPair> jointInputs(const std::vector<PairCalibrationResult>& pairs, const std::string& c,
                                       const JointCalibrationOptions& options) {
@@ -45,14 +45,15 @@ std::vector<JointFitPair> jointInputs(const std::vector<PairCalibrationResult>& 
     const PairFitInputs& in = pair.fit_inputs;
     const bool nominal = options.ratio_source == JointCalibrationOptions::RatioSource::nominal;
     const double ratio = nominal ? pair.fits.at(c).nominal_ratio : pair.fits.at(c).ratio;
-    JointFitPair p{in.sharp.at(c), in.blurred.at(c), in.kernel, in.options, ratio};
+    JointFitPair p{in.sharp.at(c), in.blurred.at(c), in.kernel, in.options, ratio, {}};
     if (const auto it = in.sharp_error.find(c); it != in.sharp_error.end()) p.options.sharp_error_bound = it->second;
+    if (!nominal) p.own_inverse_crf = pair.fits.at(c).inverse_crf;  // fitted at that r: the misfit's reference
     inputs.push_back(std::move(p));
   }
   return inputs;
 }
 
-// σ of log r of each pair's held r (JointCalibrationOptions::band_varies_ratio).
+// σ of log r of each pair's r (JointCalibrationOptions::band_varies_ratio).
 std::vector<double> ratioLogSigmas(const std::vector<PairCalibrationResult>& pairs, const JointCalibrationOptions& options) {
   std::vector<double> sigmas;
   for (const auto& pair : pairs) {
@@ -88,6 +89,7 @@ CurveBand jointBand(const std::vector<JointFitPair>& inputs, const std::vector<d
     std::vector<JointFitPair> half = inputs;
     for (std::size_t p = 0; p < half.size(); ++p) {
       if (static_cast<int>(masks[p].size()) > j) half[p].options.pixel_selection = masks[p][j];
+      half[p].own_inverse_crf.clear();  // the replicates' misfits are not read
       z[p] = j % 2 ? -z[p] : normal(rng);
       half[p].ratio *= std::exp(z[p] * ratio_log_sigmas[p]);
     }
@@ -107,7 +109,7 @@ CurveBand jointBand(const std::vector<JointFitPair>& inputs, const std::vector<d
   return band;
 }
 
-// channel_verdict's judgement of the joint curve over the union's range (no r of its own: the pairs' r are held,
+// channel_verdict's judgement of the joint curve over the union's range (no r of its own: the pairs have theirs,
 // each judged in its own verdict), at least weak when a pair's verdict was not ok.
 void judgeJoint(JointCalibrationResult& result, const JointCalibrationOptions& options) {
   std::vector<ChannelEvidence> evidence;
@@ -136,10 +138,24 @@ void judgeJoint(JointCalibrationResult& result, const JointCalibrationOptions& o
     if (!doubtful.empty()) {
       std::string text = "the pairs' own verdicts are not all ok (";
       for (std::size_t i = 0; i < doubtful.size(); ++i) text += (i ? ", " : "") + doubtful[i];
-      v.reasons.insert(v.reasons.begin(), text + "): their r, held in the joint fit, is in doubt");
+      v.reasons.insert(v.reasons.begin(), text + "): their r, where the joint fit starts, is in doubt");
       v.level = std::max(v.level, VerdictLevel::weak);
     }
-    if (passed && doubtful.empty())
+    std::vector<std::string> disagreeing;
+    for (std::size_t p = 0; p < result.pairs.size(); ++p) {
+      const auto misfit = result.pairs[p].joint_misfit.find(c);
+      if (misfit != result.pairs[p].joint_misfit.end() && misfit->second > options.max_joint_misfit)
+        disagreeing.push_back(format("pair %.0f ", double(p + 1)) + format("%.3gx", misfit->second));
+    }
+    if (!disagreeing.empty()) {
+      std::string text = "the joint phi fits a pair's data far worse than that pair's own phi (";
+      for (std::size_t i = 0; i < disagreeing.size(); ++i) text += (i ? ", " : "") + disagreeing[i];
+      v.reasons.push_back(text + format(" > %.3gx)", options.max_joint_misfit) +
+                          ": the pairs disagree (an offset in one shot, a tone curve of its own or a wrong r held); "
+                          "compare the pairs' own curves");
+      v.level = std::max(v.level, VerdictLevel::weak);
+    }
+    if (passed && doubtful.empty() && disagreeing.empty())
       v.reasons.push_back(std::to_string(result.pairs.size()) + " pairs, each ok; data of the union cover " +
                           format("%.2f-%.2f", result.covered_range.at(c).first, result.covered_range.at(c).second));
   }
@@ -176,6 +192,10 @@ double fractionInside(const std::vector<double>& phi, const CurveBand& band, std
 }  // namespace
 
 void JointCalibrationOptions::check() const {
+  if (ratio_rounds < 0 || ratio_rounds > 20)
+    throw InvalidInput("joint calibration: ratio_rounds must be in 0..20", ErrorSubject::options);
+  if (!(max_joint_misfit >= 1))
+    throw InvalidInput("joint calibration: max_joint_misfit must be >= 1", ErrorSubject::options);
   model.check();
   band.check();
   verdict.check();
@@ -189,11 +209,15 @@ std::string JointCalibrationResult::summary() const {
     s << "\n" << c << ": " << describe(fit.model) << " (" << fit.chosen << "), union covered " << format("%.2f-%.2f", lo, hi);
     for (std::size_t p = 0; p < pairs.size(); ++p) {
       const auto [plo, phi] = pairs[p].covered_range.at(c);
-      s << "\n  pair " << p + 1 << ": r " << format("%.4g held (at the joint phi %.4g)", pairs[p].ratio.at(c),
-                                                       pairs[p].ratio_at_joint_phi.at(c))
+      const double r = pairs[p].ratio.at(c), r0 = pairs[p].ratio_start.at(c);
+      s << "\n  pair " << p + 1 << ": r "
+        << (r == r0 ? format("%.4g held", r) : format("%.4g (from %.4g)", r, r0))
+        << format(" (at the joint phi %.4g)", pairs[p].ratio_at_joint_phi.at(c))
         << ", covered " << format("%.2f-%.2f", plo, phi) << ", " << pairs[p].pixels_used.at(c) << " pixels";
       if (const auto it = pairs[p].own_curve_inside_band.find(c); it != pairs[p].own_curve_inside_band.end())
         s << format(", its own phi inside the joint band over its range: %.0f %%", 100 * it->second);
+      if (const auto it = pairs[p].joint_misfit.find(c); it != pairs[p].joint_misfit.end())
+        s << format(", misfit %.3gx its own phi's", it->second);
     }
   }
   for (const auto& [c, band] : bands) s << "\nband " << c << ": " << band.summary();
@@ -214,9 +238,10 @@ JointCalibrationResult calibrateJointly(const std::vector<PairCalibrationResult>
   result.pairs.resize(pairs.size());
   JointCrfFitOptions fit_options;
   fit_options.model = options.model;
+  fit_options.ratio_rounds = options.ratio_rounds;
   for (const auto& c : result.channels) {
     auto start = Clock::now();
-    const std::vector<JointFitPair> inputs = jointInputs(pairs, c, options);
+    std::vector<JointFitPair> inputs = jointInputs(pairs, c, options);
     JointCrfFitResult joint = fitInverseCrfJointly(inputs, fit_options);
     std::pair<double, double> covered{1, 0};
     for (std::size_t p = 0; p < pairs.size(); ++p) {
@@ -226,8 +251,10 @@ JointCalibrationResult calibrateJointly(const std::vector<PairCalibrationResult>
                              : std::pair<double, double>{joint.covered_levels[p].first / (joint.fit.levels - 1.0),
                                                          joint.covered_levels[p].second / (joint.fit.levels - 1.0)};
       summary.covered_range[c] = range;
+      summary.ratio_start[c] = joint.start_ratios[p];
       summary.ratio[c] = joint.ratios[p];
       summary.ratio_at_joint_phi[c] = joint.ratios_at_joint_phi[p];
+      if (std::isfinite(joint.misfit(p))) summary.joint_misfit[c] = joint.misfit(p);
       summary.pixels_used[c] = joint.pixels[p].used;
       const auto verdict = pairs[p].verdicts.find(c);
       summary.verdict[c] = verdict == pairs[p].verdicts.end() ? VerdictLevel::ok : verdict->second.level;
@@ -237,7 +264,12 @@ JointCalibrationResult calibrateJointly(const std::vector<PairCalibrationResult>
     result.timings["joint_fit"] += secondsSince(start);
     if (options.band.replicates > 0) {
       start = Clock::now();
-      result.bands[c] = jointBand(inputs, ratioLogSigmas(pairs, options), joint, fit_options, covered, options.band);
+      // The replicates start from the r the joint fit settled at and draw around it; they do not move it again
+      // (the rounds would pull each draw back to the data's r).
+      for (std::size_t p = 0; p < inputs.size(); ++p) inputs[p].ratio = joint.ratios[p];
+      JointCrfFitOptions band_fit = fit_options;
+      band_fit.ratio_rounds = 0;
+      result.bands[c] = jointBand(inputs, ratioLogSigmas(pairs, options), joint, band_fit, covered, options.band);
       result.timings["joint_band"] += secondsSince(start);
       for (std::size_t p = 0; p < pairs.size(); ++p)
         result.pairs[p].own_curve_inside_band[c] =

@@ -1,11 +1,13 @@
 // One φ from several pairs (joint_crf_fit.hpp): each pair's moment problem built as fitInverseCrf builds it, the
-// rows stacked with r_p folded into Ĥ (r held), then the fitter's own candidates and choice at r = 1.
+// rows stacked with r_p folded into Ĥ (r held for the fit), then the fitter's own candidates and choice at r = 1;
+// optionally alternated with each pair's least-squares r at the joint φ (JointCrfFitOptions::ratio_rounds).
 #include "crfcal/joint_crf_fit.hpp"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <deque>
+#include <limits>
 #include <sstream>
 
 #include "crf_model_selection.hpp"
@@ -67,9 +69,17 @@ double ratioAt(const MomentSystem& sys, const std::vector<double>& f) {
 }  // namespace
 
 void JointCrfFitOptions::check() const {
+  if (ratio_rounds < 0 || ratio_rounds > 20) throw InvalidInput("joint fit: ratio_rounds must be in 0..20");
+  if (!(ratio_tolerance > 0)) throw InvalidInput("joint fit: ratio_tolerance must be positive");
   model.check();
   if (model.experimental.objective != CrfObjective::moments)
     throw InvalidInput("joint fit: only the moments objective can fit several pairs jointly");
+}
+
+double JointCrfFitResult::misfit(std::size_t p) const {
+  if (p >= energies.size() || p >= own_energies.size() || !(own_energies[p] > 0) || !std::isfinite(own_energies[p]))
+    return std::numeric_limits<double>::quiet_NaN();
+  return energies[p] / own_energies[p];
 }
 
 std::string JointCrfFitResult::summary() const {
@@ -77,23 +87,27 @@ std::string JointCrfFitResult::summary() const {
   s.setf(std::ios::fixed);
   s.precision(4);
   s << "joint phi: " << describe(fit.model) << " (" << fit.chosen << ", " << fit.choice_reason << ")";
-  for (std::size_t p = 0; p < ratios.size(); ++p)
-    s << "\n  pair " << p + 1 << ": r " << ratios[p] << " (held; at the joint phi " << ratios_at_joint_phi[p]
-      << "), levels " << covered_levels[p].first << "-" << covered_levels[p].second << ", " << pixels[p].used
+  for (std::size_t p = 0; p < ratios.size(); ++p) {
+    s << "\n  pair " << p + 1 << ": r " << ratios[p] << " (from " << start_ratios[p] << " after " << ratio_rounds
+      << " rounds; at the joint phi " << ratios_at_joint_phi[p] << "), levels " << covered_levels[p].first << "-" << covered_levels[p].second << ", " << pixels[p].used
       << " pixels, energy " << energies[p];
+    if (std::isfinite(misfit(p))) s << " (" << misfit(p) << "x its energy at its own phi)";
+  }
   return s.str();
 }
 
-JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, const JointCrfFitOptions& options) {
-  options.check();
-  if (pairs.empty()) throw InvalidInput("joint fit: no pairs");
-  const auto start = std::chrono::steady_clock::now();
-  const int threads = options.model.threads > 0 ? options.model.threads : std::max(1, cv::getNumThreads());
-  JointCrfFitResult out;
+namespace {
+
+// Every pair's moment problem, built once as fitInverseCrf builds it: its rows do not depend on r (r_p multiplies
+// Ĥ when the rows are stacked). Fills the per-pair parts of `out` (covered levels, pixels, mixture counts).
+struct PairProblems {
   std::deque<NoiseOperators> noise;  // the problems point into them
   std::vector<MomentProblem> problems;
-  MomentProblem joint;
-  joint.omega.resize(0);
+};
+
+PairProblems buildPairProblems(const std::vector<JointFitPair>& pairs, const JointCrfFitOptions& options, int threads,
+                               JointCrfFitResult& out) {
+  PairProblems built;
   for (std::size_t p = 0; p < pairs.size(); ++p) {
     const JointFitPair& pair = pairs[p];
     const std::string name = "pair " + std::to_string(p + 1) + ": ";
@@ -107,18 +121,16 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
     try {
       o.check();
       const Prepared prep = preparePair(pair.sharp, pair.blurred, pair.kernel, o, pair_result);
-      noise.push_back(makeNoiseOperators(prep, o));
-      problems.push_back(buildMomentProblem(prep, noise.back(), o, threads, pair_result));
+      built.noise.push_back(makeNoiseOperators(prep, o));
+      built.problems.push_back(buildMomentProblem(prep, built.noise.back(), o, threads, pair_result));
     } catch (const InvalidInput& e) {
       throw InvalidInput(name + e.reason(), e.subject());
     }
-    if (p > 0 && problems.back().moments.levels != problems.front().moments.levels)
-      throw InvalidInput(name + "its level grid (" + std::to_string(problems.back().moments.levels) +
-                         " levels) differs from pair 1's (" + std::to_string(problems.front().moments.levels) +
+    if (p > 0 && built.problems.back().moments.levels != built.problems.front().moments.levels)
+      throw InvalidInput(name + "its level grid (" + std::to_string(built.problems.back().moments.levels) +
+                         " levels) differs from pair 1's (" + std::to_string(built.problems.front().moments.levels) +
                          "): fit pairs of one bit depth together");
-    appendMoments(problems.back(), pair.ratio, joint);
-    out.ratios.push_back(pair.ratio);
-    out.covered_levels.push_back(problems.back().covered_levels);
+    out.covered_levels.push_back(built.problems.back().covered_levels);
     out.pixels.push_back(pair_result.pixels);
     out.fit.mixture_nonzeros += pair_result.mixture_nonzeros;
     if (p == 0) {
@@ -127,34 +139,37 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
       out.fit.noise_sigma_estimated = pair_result.noise_sigma_estimated;
     }
   }
-  joint.level_bins = options.model.level_bins;
-  joint.level_operator = nullptr;  // applied per pair in appendMoments
-  std::pair<int, int> covered = out.covered_levels.front();
-  for (const auto& c : out.covered_levels) covered = {std::min(covered.first, c.first), std::max(covered.second, c.second)};
-  joint.covered_levels = covered;
+  return built;
+}
 
-  // r held: the rows already carry r_p, so the fitter's candidates run at r = 1 without a ratio prior.
-  CrfFitOptions model = options.model;
+// The pairs' rows stacked at the ratios given, as one moment problem at r = 1.
+MomentProblem stackAt(const PairProblems& built, const std::vector<double>& ratios, int level_bins,
+                      std::pair<int, int> covered) {
+  MomentProblem joint;
+  joint.omega.resize(0);
+  for (std::size_t p = 0; p < built.problems.size(); ++p) appendMoments(built.problems[p], ratios[p], joint);
+  joint.level_bins = level_bins;
+  joint.level_operator = nullptr;  // applied per pair in appendMoments
+  joint.covered_levels = covered;
+  return joint;
+}
+
+// The fitter's own candidates and choice on the stacked rows (r held: the rows carry r_p, so the candidates run at
+// r = 1 without a ratio prior). Replaces the model, the candidates and the choice in `result`.
+void fitStacked(const MomentProblem& joint, const NoiseOperators& noise, const CrfFitOptions& options,
+                CrfFitResult& result) {
+  CrfFitOptions model = options;
   model.fit_ratio = false;
   model.nominal_ratio = 1.0;
   model.ratio_prior_sigma = 0;
   model.experimental.variance_correction = false;  // the CUE variances assume one pair's noise operator
-  CrfFitResult& result = out.fit;
-  result.nominal_ratio = 1.0;
-  result.objective = CrfObjective::moments;
-  result.optimizer = model.experimental.optimizer;
-  result.covered_levels = covered;
-  int nonempty = 0;
-  for (int k = 0; k < joint.moments.bins; ++k) nonempty += (joint.moments.count[0][k] + joint.moments.count[1][k]) > 0;
-  result.moment_bins = nonempty;
-  for (const auto& px : out.pixels) result.pixels.used += px.used, result.pixels.total += px.total;
   const auto t_opt = std::chrono::steady_clock::now();
   MomentSystem full;
   std::vector<CrfCandidate> candidates =
-      momentCandidates(joint, noise.front(), model, result, [&](double f, const std::string& stage) {
+      momentCandidates(joint, noise, model, result, [&](double f, const std::string& stage) {
         if (model.progress) model.progress(f, stage);
       }, full);
-  result.timings.optimise_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_opt).count();
+  result.timings.optimise_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_opt).count();
   chooseCandidate(candidates, model, result);
   result.candidates = std::move(candidates);
   result.inverse_crf = sampleValidTable(result.model);
@@ -164,12 +179,59 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
     result.chosen = "fallback";
     result.choice_reason = "the chosen curve failed validation; returned the gamma 2.2 start";
   }
+}
+
+}  // namespace
+
+JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, const JointCrfFitOptions& options) {
+  options.check();
+  if (pairs.empty()) throw InvalidInput("joint fit: no pairs");
+  const auto start = std::chrono::steady_clock::now();
+  const int threads = options.model.threads > 0 ? options.model.threads : std::max(1, cv::getNumThreads());
+  JointCrfFitResult out;
+  const PairProblems built = buildPairProblems(pairs, options, threads, out);
+  std::pair<int, int> covered = out.covered_levels.front();
+  for (const auto& c : out.covered_levels) covered = {std::min(covered.first, c.first), std::max(covered.second, c.second)};
+
+  CrfFitResult& result = out.fit;
+  result.nominal_ratio = 1.0;
+  result.objective = CrfObjective::moments;
+  result.optimizer = options.model.experimental.optimizer;
+  result.covered_levels = covered;
+  for (const auto& px : out.pixels) result.pixels.used += px.used, result.pixels.total += px.total;
+  for (const JointFitPair& pair : pairs) out.start_ratios.push_back(pair.ratio);
+  out.ratios = out.start_ratios;
+  // φ at the ratios; with ratio_rounds, each pair's r moved to its own least-squares r at that φ and φ refitted
+  // (the pairs' relative exposures from all their data; the common exponent φ^γ, r^γ stays where the starts put it).
+  for (int round = 0;; ++round) {
+    const MomentProblem joint = stackAt(built, out.ratios, options.model.level_bins, covered);
+    int nonempty = 0;
+    for (int k = 0; k < joint.moments.bins; ++k) nonempty += (joint.moments.count[0][k] + joint.moments.count[1][k]) > 0;
+    result.moment_bins = nonempty;
+    fitStacked(joint, built.noise.front(), options.model, result);
+    out.ratios_at_joint_phi.clear();
+    for (const MomentProblem& problem : built.problems) {
+      const MomentSystem sys = problem.system(-1);
+      out.ratios_at_joint_phi.push_back(ratioAt(sys, onLevelGrid(result.inverse_crf, sys.levels())));
+    }
+    out.ratio_rounds = round;
+    double moved = 0;  // in log r
+    for (std::size_t p = 0; p < out.ratios.size(); ++p)
+      if (out.ratios_at_joint_phi[p] > 0)
+        moved = std::max(moved, std::abs(std::log(out.ratios_at_joint_phi[p] / out.ratios[p])));
+    if (round >= options.ratio_rounds || !(moved > options.ratio_tolerance)) break;
+    for (std::size_t p = 0; p < out.ratios.size(); ++p)
+      if (out.ratios_at_joint_phi[p] > 0) out.ratios[p] = out.ratios_at_joint_phi[p];
+  }
   result.ratio = 1.0;
-  for (const MomentProblem& problem : problems) {
-    const MomentSystem sys = problem.system(-1);
-    const std::vector<double> f = onLevelGrid(result.inverse_crf, sys.levels());
-    out.ratios_at_joint_phi.push_back(ratioAt(sys, f));
-    out.energies.push_back(momentEnergy(sys, f, out.ratios[out.energies.size()]));
+  for (std::size_t p = 0; p < built.problems.size(); ++p) {
+    const MomentSystem sys = built.problems[p].system(-1);
+    out.energies.push_back(momentEnergy(sys, onLevelGrid(result.inverse_crf, sys.levels()), out.ratios[p]));
+    // The same rows at the pair's own φ and its starting r (the r its own fit had): the pair's misfit is the ratio
+    // of the two (scale-free).
+    const std::vector<double>& own = pairs[p].own_inverse_crf;
+    out.own_energies.push_back(own.empty() ? -1.0
+                                           : momentEnergy(sys, onLevelGrid(own, sys.levels()), out.start_ratios[p]));
   }
   result.timings.total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return out;

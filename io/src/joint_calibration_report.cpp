@@ -27,12 +27,14 @@ CalibrationReport jointCalibrationReport(const JointCalibrationResult& joint,
     for (const auto& [c, range] : s.covered_range) covered[c] = {range.first, range.second};
     pairs.push_back({{"sharp", contexts[p].pair.sharp.path.string()},
                      {"blurred", contexts[p].pair.blurred.path.string()},
-                     {"ratio_held", s.ratio},
+                     {"ratio_start", s.ratio_start},
+                     {"ratio_joint_fit", s.ratio},
                      {"ratio_at_joint_phi", s.ratio_at_joint_phi},
                      {"covered_range", covered},
                      {"pixels_used", s.pixels_used},
                      {"verdict", verdict},
                      {"own_curve_inside_band", s.own_curve_inside_band},
+                     {"joint_misfit", s.joint_misfit},
                      {"report", own.toJson()}});
   }
   json& extra = report.extra;

@@ -38,6 +38,9 @@ struct HandheldPairOptions {
   // crop does); true, its irradiance before the sensor's noise and the response (the hand's motion precedes the
   // sensor).
   bool warp_irradiance = false;
+  // An additive irradiance (fraction of full scale) in the blurred shot alone, before its noise and the response: a
+  // flare veil or a black-level error of that shot (`bench joint --offset`). 0: none.
+  double blurred_offset = 0;
   std::uint64_t seed = 1;
   void check() const;
 };

@@ -2,14 +2,17 @@
 // Several pairs of one camera calibrated jointly (issue 19; `crfcal calibrate --pair S1 B1 --pair S2 B2 …`):
 // each pair goes through the single-pair pipeline (pair_calibration.hpp: registration, kernel, kernel↔φ rounds,
 // r from its images combined with EXIF, its own verdict), then one φ per channel is fitted to all pairs' data at
-// once (joint_crf_fit.hpp), each pair with its own kernel and its own r held at the pair's final single-pair r. The
+// once (joint_crf_fit.hpp), each pair with its own kernel and its own r, which starts at the pair's final
+// single-pair r and moves, in rounds, to the least-squares r of the pair's rows at the joint φ (ratio_rounds; the
+// pairs' r then agree with one another, while their common exponent φ^γ, r^γ stays where the starts put it). The
 // pairs' covered ranges add up: the joint curve is data wherever any pair has data, and the scale φ(1) = 1 is
 // extrapolated from the top of the union.
 //   Options → Summary: calibrateJointly(pair results, options) → JointCalibrationResult.
 // The band (curve_band.hpp) is the single pair's, with the half-samples drawn in every pair at once (each pair's
 // blocks halved, complementary pairs of replicates), over the union's envelope; the verdict per channel is
 // channel_verdict's on the joint curve and the union's range, at least "weak" when a pair's own verdict was not ok
-// (its r, held in the joint fit, is then in doubt).
+// (its r, the joint fit's start, is then in doubt) or when a pair's data disagree with the joint curve
+// (JointPairSummary::joint_misfit above JointCalibrationOptions::max_joint_misfit).
 // Pure computation: no file I/O, no printing.
 #include <map>
 #include <string>
@@ -25,26 +28,37 @@ namespace crfcal {
 
 struct JointCalibrationOptions {
   // The model of the joint φ and its priors: the single pair's defaults (PairCalibrationOptions::fit), so that the
-  // joint and the single fits differ only in their data. Its ratio settings are ignored: each pair's r is held.
+  // joint and the single fits differ only in their data. Its ratio settings are ignored: each pair has its own r.
   CrfFitOptions model = PairCalibrationOptions{}.fit;
-  // Where each pair's held r comes from: its final single-pair r (pair_fit: the images combined with EXIF,
+  // Where each pair's r starts: its final single-pair r (pair_fit: the images combined with EXIF,
   // ratio_evidence.hpp) or its nominal ratio (EXIF or --ratio).
   enum class RatioSource { pair_fit, nominal };
   RatioSource ratio_source = RatioSource::pair_fit;
+  // Rounds that move each pair's r from that start to its least-squares r at the joint φ (JointCrfFitOptions::
+  // ratio_rounds; 0: held). The rounds stop once no r moves by 0.1 %; 10 is a cap they rarely reach. Measured on
+  // `bench joint` (docs/RESULTS.md#joint-ratio-rounds): the pairs' r agree, and the joint φ's shape error falls.
+  int ratio_rounds = 10;
   CurveBandOptions band;   // the joint band (replicates = 0: none)
-  // The band's replicates also draw each pair's held r from its uncertainty: log r + z·σ, z ~ N(0, 1) (antithetic
+  // The band's replicates also draw each pair's r (as the joint fit settled it) from its uncertainty: log r + z·σ, z ~ N(0, 1) (antithetic
   // in each complementary pair of replicates), σ the pair's ratio evidence σ (RatioEvidence::log_sigma; EXIF's
   // nominal σ when the evidence was not combined or r is the nominal one). The half-samples alone see only the
   // images' sampling error, not the error of the r the joint fit holds, which biases φ along φ^γ, r^γ.
-  // false: r as held in every replicate.
+  // false: r as the joint fit settled it in every replicate.
   bool band_varies_ratio = true;
   VerdictOptions verdict;  // the joint verdict's thresholds
+  // A pair whose rows the joint φ fits this many times worse than the pair's own φ does (JointPairSummary::
+  // joint_misfit) disagrees with the others: the joint curve is then at most "weak" and the
+  // reason names the pair. Chosen on three curves (`bench joint`'s defaults and a planted offset in one of two
+  // pairs), reported on seven others: consistent pairs reach 4.2 there and 7.0 on the others, an offset 8× the
+  // effect threshold at least 16 (docs/RESULTS.md#joint-misfit).
+  double max_joint_misfit = 8.0;
   void check() const;      // throws InvalidInput
 };
 
 // What the joint fit took from one pair, and what it says about it.
 struct JointPairSummary {
-  std::map<std::string, double> ratio;               // per channel: r held (the pair's final single-pair r)
+  std::map<std::string, double> ratio_start;         // per channel: the pair's final single-pair r (or its nominal)
+  std::map<std::string, double> ratio;               // per channel: r of the joint fit (ratio_start when held)
   std::map<std::string, double> ratio_at_joint_phi;  // per channel: the pair's least-squares r at the joint φ
   std::map<std::string, std::pair<double, double>> covered_range;  // per channel: the pair's own covered range
   std::map<std::string, long long> pixels_used;      // per channel, in the joint fit
@@ -52,6 +66,10 @@ struct JointPairSummary {
   // Per channel, with a band: the fraction of the pair's own φ samples over its own covered range that lie inside
   // the joint band [lower, upper] (issue 19: the joint band should contain each single pair's "ok" curve there).
   std::map<std::string, double> own_curve_inside_band;
+  // Per channel: the pair's rows' energy at the joint φ and its joint r ÷ at its own φ and r (JointCrfFitResult::
+  // misfit; ≈ 1 when the pairs agree). Absent when not measured (r started at the nominal ratio, or an own φ flat
+  // over a bin).
+  std::map<std::string, double> joint_misfit;
 };
 
 struct JointCalibrationResult {

@@ -5,11 +5,19 @@
 // joint objective is the sum over the pairs' bins, J(φ) = Σ_p Σ_{k∈p} ω_k ((r_p Ĥ_k − N_k) · φ / s_k)², so the
 // intensities the pairs cover add up: a level one pair does not reach is data for another, and φ(1) = 1 is
 // extrapolated from the top of the union instead of each pair's own top.
-// r_p is HELD (at the value the caller gives, e.g. the pair's single-pair r after its evidence with EXIF,
-// ratio_evidence.hpp): with r_p held the pairs' rows stack into one moment problem at r = 1, and the fitter's
-// model selection (GGCM vs EMoR by 2-fold cross-validation), priors and validity checks apply unchanged. At the
-// joint φ the closed-form r of each pair (the least-squares r of its rows, as Eq. 25 does for the seed objective)
-// is reported as a check of that hold.
+// For the φ fit each r_p is held (at the value the caller gives, e.g. the pair's single-pair r after its evidence
+// with EXIF, ratio_evidence.hpp): with r_p held the pairs' rows stack into one moment problem at r = 1, and the
+// fitter's model selection (GGCM vs EMoR by 2-fold cross-validation), priors and validity checks apply unchanged.
+// At the joint φ the closed-form r of each pair (the least-squares r of its rows, as Eq. 25 does for the seed
+// objective) is reported; with JointCrfFitOptions::ratio_rounds each r_p then moves there and φ is refitted, until
+// no r moves (alternating, as Eq. 25 alternates with φ in a single pair). Then the pairs' relative exposures come
+// from all their data: a pair's r off by 9 % alone no longer bends the common φ (docs/RESULTS.md#joint-ratio-rounds).
+// The common exponent is not fixed by the rounds: φ^γ with every r_p^γ fits all the pairs alike, so it stays
+// where the starting r put it. Each pair's misfit is reported too: its rows' energy at the joint φ and r against
+// their energy at the pair's own φ and r (the energy is scale-free, so only φ's shape over the pair's data
+// counts). Pairs of one camera agree, and their misfit stays small; a pair whose shots break what the others
+// share (an offset in one shot, which a single pair absorbs into its own φ + c / (r − 1); a tone curve of its own)
+// cannot be fitted by the common φ, and its misfit grows (docs/RESULTS.md#joint-misfit).
 // Pure computation: no file I/O, no printing.
 #include <string>
 #include <utility>
@@ -28,24 +36,38 @@ struct JointFitPair {
   // The pair's own fit options: noise handling and σ, saturation levels, edge threshold, pixel selection, chroma
   // error bound. Their model, prior and ratio settings are not used (JointCrfFitOptions::model decides those).
   CrfFitOptions options;
-  double ratio = 1;        // r_p, held (> 0)
+  double ratio = 1;        // r_p (> 0): held, or the start of JointCrfFitOptions::ratio_rounds
+  // The pair's own φ (its single-pair fit, 1024 samples of [0, 1]) for JointCrfFitResult::own_energies; empty: the
+  // pair's misfit is not measured.
+  std::vector<double> own_inverse_crf;
 };
 
 struct JointCrfFitOptions {
   // The model of φ and its priors (model, ggcm_degree, emor_terms, exponent_smoothness, shoulder_prior,
   // prior_energy_factor, min_local_exponent, multi_starts, max_evaluations, threads). Its ratio settings are
-  // ignored (each pair's r is held); only the moments objective (the default) can be fitted jointly.
+  // ignored (each pair has its own r); only the moments objective (the default) can be fitted jointly.
   CrfFitOptions model;
+  // Rounds that move each pair's r to the least-squares r of its own rows at the joint φ, then refit φ (0: every r
+  // held at JointFitPair::ratio). The pairs then agree on their relative exposures from all their data; the common
+  // exponent (φ^γ with every r_p^γ fits alike) stays where the starting r put it.
+  int ratio_rounds = 0;
+  double ratio_tolerance = 1e-3;  // the rounds stop when no pair's r moves by more than this (in log r)
   void check() const;  // throws InvalidInput
 };
 
 struct JointCrfFitResult {
   CrfFitResult fit;  // the joint φ; fit.ratio = 1 and fit.covered_levels the union's envelope
-  std::vector<double> ratios;                        // r_p as held
+  std::vector<double> start_ratios;                  // r_p as given (JointFitPair::ratio)
+  std::vector<double> ratios;                        // r_p the joint φ was fitted at (the starts without rounds)
+  int ratio_rounds = 0;                              // rounds that moved r (JointCrfFitOptions::ratio_rounds)
   std::vector<double> ratios_at_joint_phi;           // per pair the least-squares r of its rows at the joint φ
   std::vector<std::pair<int, int>> covered_levels;   // per pair (0.1 % tails dropped, as CrfFitResult's)
   std::vector<CrfPixelAccounting> pixels;            // per pair
   std::vector<double> energies;                      // per pair: its rows' energy at the joint φ (per unit weight)
+  std::vector<double> own_energies;  // per pair: its rows' energy at its own φ and r (< 0: no own φ given)
+  // energies[p] / own_energies[p]: how much worse the joint φ fits pair p's data than the pair's own φ does (≈ 1
+  // when the pairs agree); NaN without an own φ, or where the own φ's energy is 0 or not finite (flat over a bin).
+  double misfit(std::size_t p) const;
   std::string summary() const;
 };
 

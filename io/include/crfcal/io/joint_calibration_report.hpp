@@ -2,8 +2,9 @@
 // The report of a joint calibration (`crfcal calibrate --pair S1 B1 --pair S2 B2 …`, joint_calibration.hpp):
 // report.hpp's schema with the joint φ per channel ("inverse_crf", "models", "covered_range": the union's envelope,
 // "inverse_crf_band", "verdict", "verdict_reasons" as calibrate writes them), and
-//   "joint": {"pairs": [{"sharp", "blurred", "ratio_held": {"G": r}, "ratio_at_joint_phi": {"G": r},
-//                        "covered_range": {"G": [lo, hi]}, "pixels_used": {"G": n}, "verdict": {"G": "ok"},
+//   "joint": {"pairs": [{"sharp", "blurred", "ratio_start": {"G": r}, "ratio_joint_fit": {"G": r},
+//                        "ratio_at_joint_phi": {"G": r}, "covered_range": {"G": [lo, hi]}, "pixels_used": {"G": n},
+//                        "verdict": {"G": "ok"}, "own_curve_inside_band": {"G": f}, "joint_misfit": {"G": m},
 //                        "report": {… the pair's own calibrate report …}}, …]}
 // "exposure_ratio" is absent at the top (each pair has its own r); compare and export read the report as any other.
 #include <vector>
