@@ -173,7 +173,7 @@ class JointRun {
       best_union = std::min(best_union, s.union_range.rmse_covered);
       best_shape = std::min(best_shape, s.union_range.rmse_covered_aligned);
     }
-    double largest = 0;
+    double largest = -1;  // none measured (each pair's r started at its nominal one: no own fit at that r)
     for (const JointPairSummary& pair : joint.pairs)
       if (const auto m = pair.joint_misfit.find("G"); m != pair.joint_misfit.end()) largest = std::max(largest, m->second);
     totals.largest_misfit.push_back(largest);
@@ -208,7 +208,8 @@ class JointRun {
     std::string misfits;
     for (const double m : totals.largest_misfit) {
       char value[32];
-      std::snprintf(value, sizeof value, "%s%.2f", misfits.empty() ? "" : " / ", m);
+      if (m < 0) std::snprintf(value, sizeof value, "%s-", misfits.empty() ? "" : " / ");
+      else std::snprintf(value, sizeof value, "%s%.2f", misfits.empty() ? "" : " / ", m);
       misfits += value;
     }
     std::snprintf(line, sizeof line,
@@ -283,6 +284,9 @@ class JointRun {
 };
 
 int runJointBench(const JointBenchArgs& args) {
+  if (args.offset != 0 && args.offset_pair > args.pairs)
+    throw Error("--offset-pair " + std::to_string(args.offset_pair) + " names no pair (--pairs " +
+                std::to_string(args.pairs) + ")", ErrorSubject::options);
   std::vector<std::string> images = args.images, crfs = args.crfs;
   if (images.empty())
     for (const char* p : kPhotos) {
@@ -295,9 +299,6 @@ int runJointBench(const JointBenchArgs& args) {
       crfs.push_back("table:" + (io::samplesDirectory() / "camera_curves" / (std::string(c) + ".csv")).string());
   std::vector<fs::path> inputs(images.begin(), images.end());
   for (const auto& spec : crfs) inputs.push_back(io::specInput(spec));
-  if (args.offset != 0 && args.offset_pair > args.pairs)
-    throw Error("--offset-pair " + std::to_string(args.offset_pair) + " names no pair (--pairs " +
-                std::to_string(args.pairs) + ")", ErrorSubject::options);
   io::OutputDirectory out(args.output, {"bench joint", inputs, args.force});
   std::vector<cv::Mat> photos;
   for (const auto& path : images) {

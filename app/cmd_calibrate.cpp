@@ -327,7 +327,8 @@ int strictExitCode(const CalibrateArgs& args, const PairCalibrationResult& resul
 int runCalibrate(const CalibrateArgs& args) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
-  if (args.joint_ratio_rounds >= 0) throw Error("--joint-ratio-rounds applies to a joint calibration (--pair/--pairs)");
+  if (args.joint_ratio_rounds >= 0)
+    throw Error("--joint-ratio-rounds applies to a joint calibration (--pair/--pairs)", ErrorSubject::options);
   if (args.threads > 0) cv::setNumThreads(args.threads);
   Progress progress(args.quiet);
   std::map<std::string, double> timings;  // the command's stages (the calibration's own are in its result)

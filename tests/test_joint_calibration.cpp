@@ -248,6 +248,22 @@ TEST(CalibrateJointCli, RefusesAMissingPairFileWithOneLineAndWritesNothing) {
   EXPECT_EQ(test::run(bin() + " calibrate -q" + one + " -o " + (dir / "out").string()).exit_code, 1);
   EXPECT_EQ(test::run(bin() + " calibrate -q" + one + one + " --ratio 2 -o " + (dir / "out").string()).exit_code, 1);
   EXPECT_FALSE(fs::exists(dir / "out"));
+  // --joint-ratio-rounds belongs to a joint calibration: refused for one pair, before anything is written
+  const auto single = test::run(bin() + " calibrate -q " + (pairs / "sharp.jpg").string() + " " +
+                                (pairs / "blurred.jpg").string() + " --joint-ratio-rounds 2 -o " + (dir / "out").string());
+  EXPECT_EQ(single.exit_code, 1) << single.output;
+  EXPECT_NE(single.output.find("--joint-ratio-rounds applies to a joint calibration"), std::string::npos) << single.output;
+  EXPECT_EQ(std::count(single.output.begin(), single.output.end(), '\n'), 1) << single.output;
+  EXPECT_FALSE(fs::exists(dir / "out"));
+}
+
+TEST(BenchJointCli, AnOffsetForAPairThatIsNotThereIsRefusedWithOneLineAndWritesNothing) {
+  test::TempDir dir;
+  const auto r = test::run(bin() + " bench joint --pairs 3 --offset 0.01 --offset-pair 4 -o " + (dir / "out").string());
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("--offset-pair 4 names no pair (--pairs 3)"), std::string::npos) << r.output;
+  EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "out"));
 }
 
 // The bundled pair twice through a manifest (plumbing, not accuracy): one φ per channel, both pairs in report.json.
@@ -266,6 +282,11 @@ TEST(CalibrateJointCli, ManifestRunWritesTheJointReport) {
   EXPECT_TRUE(report["joint"]["pairs"][0]["report"].contains("inverse_crf"));
   EXPECT_EQ(report["inverse_crf_band"]["G"]["lower"].size(), 1024u);
   EXPECT_TRUE(report["verdict"].contains("G"));
+  for (const auto& pair : report["joint"]["pairs"]) {  // each pair's r where it started and where the joint fit put it
+    EXPECT_GT(double(pair["ratio_start"]["G"]), 0) << pair.dump();
+    EXPECT_GT(double(pair["ratio_joint_fit"]["G"]), 0) << pair.dump();
+    EXPECT_GT(double(pair["joint_misfit"]["G"]), 0) << pair.dump();
+  }
   EXPECT_TRUE(fs::exists(dir / "out" / "curve.png"));
   EXPECT_TRUE(fs::exists(dir / "out" / "kernel_2.txt"));
   // the same pair twice: the joint φ is that pair's φ, up to the fitter's tolerance

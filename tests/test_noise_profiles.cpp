@@ -153,6 +153,24 @@ TEST(RealRegimeSimulation, SharpShotIsUnderexposedByRAndCarriesThePlantedNoisePe
   }
 }
 
+// `bench joint --offset`: an additive irradiance in the blurred shot alone (a flare or black level of that shot),
+// before the response: through a linear φ each blurred pixel rises by it, the sharp shot is untouched.
+TEST(RealRegimeSimulation, BlurredOffsetRaisesTheBlurredShotAloneByItsIrradiance) {
+  const cv::Mat photo(64, 64, CV_8UC1, cv::Scalar(64));
+  const cv::Mat kernel = cv::Mat::ones(1, 1, CV_64F);
+  HandheldPairOptions options;
+  options.ratio = 2;
+  options.shift_x = options.shift_y = options.rotation_deg = 0;
+  options.noise_gain_sharp = options.noise_gain_blurred = options.read_noise = 0;
+  const HandheldPair clean = makeHandheldPair(photo, GammaModel{1.0}, kernel, options);
+  options.blurred_offset = 0.04;
+  const HandheldPair offset = makeHandheldPair(photo, GammaModel{1.0}, kernel, options);
+  EXPECT_EQ(cv::norm(clean.sharp, offset.sharp, cv::NORM_INF), 0);
+  EXPECT_NEAR(cv::mean(offset.blurred)[0] - cv::mean(clean.blurred)[0], 0.04 * 255, 0.6);
+  options.blurred_offset = 0.6;
+  EXPECT_THROW(makeHandheldPair(photo, GammaModel{1.0}, kernel, options), InvalidInput);
+}
+
 TEST(RealRegimeSimulation, BenchPairsWritesTheNominalRatioAndTheIsosInExifAndTruth) {
   TempDir dir;
   const auto result = run("'" + crfcalBinary().string() + "' bench pairs --pairs-only --regime real --ratio 8 " +
