@@ -202,6 +202,28 @@ TEST(JointCalibration, AnOffsetInOnePairShowsAsMisfitAndMakesTheJointVerdictWeak
   std::cout << numbers << "\n";
 }
 
+TEST(JointCalibration, EveryChannelOfAPairIsFittedAtOneRatio) {
+  // r is the exposure's: one per pair for every channel, as in a single pair. Here R is G's data, but each pair's own
+  // R fit was made at an r 10 % high; the joint fit still fits R at the r the rounds on G settled at.
+  std::vector<PairCalibrationResult> pairs = offsetPairs(0);
+  for (PairCalibrationResult& pair : pairs) {
+    CrfFitOptions off = pair.fit_inputs.options;
+    off.nominal_ratio *= 1.1;
+    pair.fit_inputs.sharp["R"] = pair.fit_inputs.sharp.at("G");
+    pair.fit_inputs.blurred["R"] = pair.fit_inputs.blurred.at("G");
+    pair.fits["R"] = fitInverseCrf(pair.fit_inputs.sharp.at("R"), pair.fit_inputs.blurred.at("R"),
+                                   pair.fit_inputs.kernel, off);
+  }
+  JointCalibrationOptions options;
+  options.band.replicates = 0;
+  const JointCalibrationResult joint = calibrateJointly(pairs, options);
+  ASSERT_EQ(joint.channels, (std::vector<std::string>{"R", "G"}));
+  for (std::size_t p = 0; p < pairs.size(); ++p) {
+    EXPECT_DOUBLE_EQ(joint.pairs[p].ratio.at("R"), joint.pairs[p].ratio.at("G")) << joint.summary();
+    EXPECT_DOUBLE_EQ(joint.pairs[p].ratio_start.at("R"), pairs[p].fits.at("R").ratio) << joint.summary();
+  }
+}
+
 TEST(JointCalibration, NeedsTwoPairsWithTheirFitInputs) {
   EXPECT_THROW(calibrateJointly({PairCalibrationResult{}}), InvalidInput);
   EXPECT_THROW(calibrateJointly({PairCalibrationResult{}, PairCalibrationResult{}}), InvalidInput);

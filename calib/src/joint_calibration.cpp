@@ -189,6 +189,59 @@ double fractionInside(const std::vector<double>& phi, const CurveBand& band, std
   return n > 0 ? double(inside) / n : 0.0;
 }
 
+// Channel `c` fitted jointly into `result`: each pair's r from its own fit, moved by the rounds when `ratios` is
+// empty, else held at `ratios` (the rounds' r of the channel fitted first). Returns the r the fit used.
+std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pairs, const std::string& c,
+                                    const std::vector<double>& ratios, const JointCalibrationOptions& options,
+                                    JointCalibrationResult& result) {
+  auto start = Clock::now();
+  std::vector<JointFitPair> inputs = jointInputs(pairs, c, options);
+  std::vector<double> own_start;
+  for (JointFitPair& input : inputs) own_start.push_back(input.ratio);
+  JointCrfFitOptions fit_options;
+  fit_options.model = options.model;
+  fit_options.ratio_rounds = ratios.empty() ? options.ratio_rounds : 0;
+  for (std::size_t p = 0; p < inputs.size() && !ratios.empty(); ++p) {
+    inputs[p].own_ratio = inputs[p].ratio;  // the r its own φ was fitted at: the misfit's reference
+    inputs[p].ratio = ratios[p];
+  }
+  const JointCrfFitResult joint = fitInverseCrfJointly(inputs, fit_options);
+  std::pair<double, double> covered{1, 0};
+  for (std::size_t p = 0; p < pairs.size(); ++p) {
+    JointPairSummary& summary = result.pairs[p];
+    const auto range = pairs[p].covered_range.count(c)
+                           ? pairs[p].covered_range.at(c)
+                           : std::pair<double, double>{joint.covered_levels[p].first / (joint.fit.levels - 1.0),
+                                                       joint.covered_levels[p].second / (joint.fit.levels - 1.0)};
+    summary.covered_range[c] = range;
+    summary.ratio_start[c] = own_start[p];
+    summary.ratio[c] = joint.ratios[p];
+    summary.ratio_at_joint_phi[c] = joint.ratios_at_joint_phi[p];
+    if (std::isfinite(joint.misfit(p))) summary.joint_misfit[c] = joint.misfit(p);
+    summary.pixels_used[c] = joint.pixels[p].used;
+    const auto verdict = pairs[p].verdicts.find(c);
+    summary.verdict[c] = verdict == pairs[p].verdicts.end() ? VerdictLevel::ok : verdict->second.level;
+    covered = {std::min(covered.first, range.first), std::max(covered.second, range.second)};
+  }
+  result.covered_range[c] = covered;
+  result.timings["joint_fit"] += secondsSince(start);
+  if (options.band.replicates > 0) {
+    start = Clock::now();
+    // The replicates start from the r the joint fit used and draw around it; they do not move it again (the rounds
+    // would pull each draw back to the data's r).
+    for (std::size_t p = 0; p < inputs.size(); ++p) inputs[p].ratio = joint.ratios[p];
+    JointCrfFitOptions band_fit = fit_options;
+    band_fit.ratio_rounds = 0;
+    result.bands[c] = jointBand(inputs, ratioLogSigmas(pairs, options), joint, band_fit, covered, options.band);
+    result.timings["joint_band"] += secondsSince(start);
+    for (std::size_t p = 0; p < pairs.size(); ++p)
+      result.pairs[p].own_curve_inside_band[c] =
+          fractionInside(pairs[p].fits.at(c).inverse_crf, result.bands[c], result.pairs[p].covered_range.at(c));
+  }
+  result.fits[c] = joint.fit;
+  return joint.ratios;
+}
+
 }  // namespace
 
 void JointCalibrationOptions::check() const {
@@ -236,47 +289,12 @@ JointCalibrationResult calibrateJointly(const std::vector<PairCalibrationResult>
   result.channels = commonChannels(pairs);
   if (result.channels.empty()) throw InvalidInput("the pairs have no fitted channel in common", ErrorSubject::pair);
   result.pairs.resize(pairs.size());
-  JointCrfFitOptions fit_options;
-  fit_options.model = options.model;
-  fit_options.ratio_rounds = options.ratio_rounds;
-  for (const auto& c : result.channels) {
-    auto start = Clock::now();
-    std::vector<JointFitPair> inputs = jointInputs(pairs, c, options);
-    JointCrfFitResult joint = fitInverseCrfJointly(inputs, fit_options);
-    std::pair<double, double> covered{1, 0};
-    for (std::size_t p = 0; p < pairs.size(); ++p) {
-      JointPairSummary& summary = result.pairs[p];
-      const auto range = pairs[p].covered_range.count(c)
-                             ? pairs[p].covered_range.at(c)
-                             : std::pair<double, double>{joint.covered_levels[p].first / (joint.fit.levels - 1.0),
-                                                         joint.covered_levels[p].second / (joint.fit.levels - 1.0)};
-      summary.covered_range[c] = range;
-      summary.ratio_start[c] = joint.start_ratios[p];
-      summary.ratio[c] = joint.ratios[p];
-      summary.ratio_at_joint_phi[c] = joint.ratios_at_joint_phi[p];
-      if (std::isfinite(joint.misfit(p))) summary.joint_misfit[c] = joint.misfit(p);
-      summary.pixels_used[c] = joint.pixels[p].used;
-      const auto verdict = pairs[p].verdicts.find(c);
-      summary.verdict[c] = verdict == pairs[p].verdicts.end() ? VerdictLevel::ok : verdict->second.level;
-      covered = {std::min(covered.first, range.first), std::max(covered.second, range.second)};
-    }
-    result.covered_range[c] = covered;
-    result.timings["joint_fit"] += secondsSince(start);
-    if (options.band.replicates > 0) {
-      start = Clock::now();
-      // The replicates start from the r the joint fit settled at and draw around it; they do not move it again
-      // (the rounds would pull each draw back to the data's r).
-      for (std::size_t p = 0; p < inputs.size(); ++p) inputs[p].ratio = joint.ratios[p];
-      JointCrfFitOptions band_fit = fit_options;
-      band_fit.ratio_rounds = 0;
-      result.bands[c] = jointBand(inputs, ratioLogSigmas(pairs, options), joint, band_fit, covered, options.band);
-      result.timings["joint_band"] += secondsSince(start);
-      for (std::size_t p = 0; p < pairs.size(); ++p)
-        result.pairs[p].own_curve_inside_band[c] =
-            fractionInside(pairs[p].fits.at(c).inverse_crf, result.bands[c], result.pairs[p].covered_range.at(c));
-    }
-    result.fits[c] = std::move(joint.fit);
-  }
+  // r is the exposure's, one per pair for every channel (as a single pair's, pair_stage_ratio.cpp): the rounds run
+  // on G (else the first channel), and the other channels are fitted at the r they settled at.
+  std::vector<std::string> order = result.channels;
+  std::stable_partition(order.begin(), order.end(), [](const std::string& c) { return c == "G"; });
+  std::vector<double> settled;
+  for (const auto& c : order) settled = fitJointChannel(pairs, c, settled, options, result);
   warnAboutGaps(result);
   judgeJoint(result, options);
   return result;

@@ -227,11 +227,11 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
   for (std::size_t p = 0; p < built.problems.size(); ++p) {
     const MomentSystem sys = built.problems[p].system(-1);
     out.energies.push_back(momentEnergy(sys, onLevelGrid(result.inverse_crf, sys.levels()), out.ratios[p]));
-    // The same rows at the pair's own φ and its starting r (the r its own fit had): the pair's misfit is the ratio
-    // of the two (scale-free).
+    // The same rows at the pair's own φ and the r its own fit had: the pair's misfit is the ratio of the two
+    // (scale-free).
     const std::vector<double>& own = pairs[p].own_inverse_crf;
-    out.own_energies.push_back(own.empty() ? -1.0
-                                           : momentEnergy(sys, onLevelGrid(own, sys.levels()), out.start_ratios[p]));
+    const double own_ratio = pairs[p].own_ratio > 0 ? pairs[p].own_ratio : out.start_ratios[p];
+    out.own_energies.push_back(own.empty() ? -1.0 : momentEnergy(sys, onLevelGrid(own, sys.levels()), own_ratio));
   }
   result.timings.total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return out;

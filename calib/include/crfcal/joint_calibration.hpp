@@ -35,8 +35,10 @@ struct JointCalibrationOptions {
   enum class RatioSource { pair_fit, nominal };
   RatioSource ratio_source = RatioSource::pair_fit;
   // Rounds that move each pair's r from that start to its least-squares r at the joint φ (JointCrfFitOptions::
-  // ratio_rounds; 0: held). The rounds stop once no r moves by 0.1 %; 10 is a cap they rarely reach. Measured on
-  // `bench joint` (docs/RESULTS.md#joint-ratio-rounds): the pairs' r agree, and the joint φ's shape error falls.
+  // ratio_rounds; 0: held). The rounds stop once no r moves by 0.1 %; 10 is a cap they rarely reach. They run on G
+  // (else the first channel); the other channels are fitted at the r they settled at, one r per pair as in a single
+  // pair. Measured on `bench joint` (docs/RESULTS.md#joint-ratio-rounds): the pairs' r agree, and the joint φ's
+  // shape error falls.
   int ratio_rounds = 10;
   CurveBandOptions band;   // the joint band (replicates = 0: none)
   // The band's replicates also draw each pair's r (as the joint fit settled it) from its uncertainty: log r + z·σ, z ~ N(0, 1) (antithetic
@@ -60,7 +62,7 @@ struct JointCalibrationOptions {
 // What the joint fit took from one pair, and what it says about it.
 struct JointPairSummary {
   std::map<std::string, double> ratio_start;         // per channel: the pair's final single-pair r (or its nominal)
-  std::map<std::string, double> ratio;               // per channel: r of the joint fit (ratio_start when held)
+  std::map<std::string, double> ratio;               // per channel: r of the joint fit (G's for every channel)
   std::map<std::string, double> ratio_at_joint_phi;  // per channel: the pair's least-squares r at the joint φ
   std::map<std::string, std::pair<double, double>> covered_range;  // per channel: the pair's own covered range
   std::map<std::string, long long> pixels_used;      // per channel, in the joint fit

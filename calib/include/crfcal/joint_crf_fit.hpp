@@ -40,6 +40,7 @@ struct JointFitPair {
   // The pair's own φ (its single-pair fit, 1024 samples of [0, 1]) for JointCrfFitResult::own_energies; empty: the
   // pair's misfit is not measured.
   std::vector<double> own_inverse_crf;
+  double own_ratio = 0;  // the r own_inverse_crf was fitted at (≤ 0: `ratio`)
 };
 
 struct JointCrfFitOptions {
@@ -64,7 +65,7 @@ struct JointCrfFitResult {
   std::vector<std::pair<int, int>> covered_levels;   // per pair (0.1 % tails dropped, as CrfFitResult's)
   std::vector<CrfPixelAccounting> pixels;            // per pair
   std::vector<double> energies;                      // per pair: its rows' energy at the joint φ (per unit weight)
-  std::vector<double> own_energies;  // per pair: its rows' energy at its own φ and r (< 0: no own φ given)
+  std::vector<double> own_energies;  // per pair: its rows' energy at its own φ and own r (< 0: no own φ given)
   // energies[p] / own_energies[p]: how much worse the joint φ fits pair p's data than the pair's own φ does (≈ 1
   // when the pairs agree); NaN without an own φ, or where the own φ's energy is 0 or not finite (flat over a bin).
   double misfit(std::size_t p) const;
