@@ -175,7 +175,8 @@ class JointRun {
     }
     double largest = -1;  // none measured (each pair's r started at its nominal one: no own fit at that r)
     for (const JointPairSummary& pair : joint.pairs)
-      if (const auto m = pair.joint_misfit.find("G"); m != pair.joint_misfit.end()) largest = std::max(largest, m->second);
+      if (const auto m = pair.joint_misfit.find("G"); m != pair.joint_misfit.end())
+        largest = std::max(largest, m->second);
     totals.largest_misfit.push_back(largest);
     for (const std::string& reason : joint.verdicts.at("G").reasons)
       if (reason.find("the pairs disagree") != std::string::npos) ++totals.disagreeing;
@@ -312,7 +313,8 @@ int runJointBench(const JointBenchArgs& args) {
   std::ostringstream header;
   header << "Joint fit of " << args.pairs << " semi-real pairs per camera curve (photos, kernels and exposures "
          << "differ per pair); phi_G against the truth.";
-  if (args.offset != 0) header << " Pair " << args.offset_pair << "'s blurred shot has an offset " << args.offset << ".";
+  if (args.offset != 0)
+    header << " Pair " << args.offset_pair << "'s blurred shot has an offset " << args.offset << ".";
   header << "\n\n| curve | fit | covered G | RMSE [0, 1] | RMSE over the "
          << "union | shape RMSE over the union | notes |\n|---|---|---|---|---|---|---|\n";
   for (const auto& crf : crfs) run.runCurve(crf, photos);

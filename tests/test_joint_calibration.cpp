@@ -272,9 +272,11 @@ TEST(CalibrateJointCli, RefusesAMissingPairFileWithOneLineAndWritesNothing) {
   EXPECT_FALSE(fs::exists(dir / "out"));
   // --joint-ratio-rounds belongs to a joint calibration: refused for one pair, before anything is written
   const auto single = test::run(bin() + " calibrate -q " + (pairs / "sharp.jpg").string() + " " +
-                                (pairs / "blurred.jpg").string() + " --joint-ratio-rounds 2 -o " + (dir / "out").string());
+                                (pairs / "blurred.jpg").string() + " --joint-ratio-rounds 2 -o " +
+                                (dir / "out").string());
   EXPECT_EQ(single.exit_code, 1) << single.output;
-  EXPECT_NE(single.output.find("--joint-ratio-rounds applies to a joint calibration"), std::string::npos) << single.output;
+  EXPECT_NE(single.output.find("--joint-ratio-rounds applies to a joint calibration"), std::string::npos)
+      << single.output;
   EXPECT_EQ(std::count(single.output.begin(), single.output.end(), '\n'), 1) << single.output;
   EXPECT_FALSE(fs::exists(dir / "out"));
 }

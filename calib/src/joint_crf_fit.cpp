@@ -89,7 +89,8 @@ std::string JointCrfFitResult::summary() const {
   s << "joint phi: " << describe(fit.model) << " (" << fit.chosen << ", " << fit.choice_reason << ")";
   for (std::size_t p = 0; p < ratios.size(); ++p) {
     s << "\n  pair " << p + 1 << ": r " << ratios[p] << " (from " << start_ratios[p] << " after " << ratio_rounds
-      << " rounds; at the joint phi " << ratios_at_joint_phi[p] << "), levels " << covered_levels[p].first << "-" << covered_levels[p].second << ", " << pixels[p].used
+      << " rounds; at the joint phi " << ratios_at_joint_phi[p] << "), levels " << covered_levels[p].first << "-"
+      << covered_levels[p].second << ", " << pixels[p].used
       << " pixels, energy " << energies[p];
     if (std::isfinite(misfit(p))) s << " (" << misfit(p) << "x its energy at its own phi)";
   }
@@ -191,7 +192,8 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
   JointCrfFitResult out;
   const PairProblems built = buildPairProblems(pairs, options, threads, out);
   std::pair<int, int> covered = out.covered_levels.front();
-  for (const auto& c : out.covered_levels) covered = {std::min(covered.first, c.first), std::max(covered.second, c.second)};
+  for (const auto& c : out.covered_levels)
+    covered = {std::min(covered.first, c.first), std::max(covered.second, c.second)};
 
   CrfFitResult& result = out.fit;
   result.nominal_ratio = 1.0;
@@ -206,7 +208,8 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
   for (int round = 0;; ++round) {
     const MomentProblem joint = stackAt(built, out.ratios, options.model.level_bins, covered);
     int nonempty = 0;
-    for (int k = 0; k < joint.moments.bins; ++k) nonempty += (joint.moments.count[0][k] + joint.moments.count[1][k]) > 0;
+    for (int k = 0; k < joint.moments.bins; ++k)
+      nonempty += (joint.moments.count[0][k] + joint.moments.count[1][k]) > 0;
     result.moment_bins = nonempty;
     fitStacked(joint, built.noise.front(), options.model, result);
     out.ratios_at_joint_phi.clear();

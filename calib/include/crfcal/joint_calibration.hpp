@@ -41,10 +41,11 @@ struct JointCalibrationOptions {
   // shape error falls.
   int ratio_rounds = 10;
   CurveBandOptions band;   // the joint band (replicates = 0: none)
-  // The band's replicates also draw each pair's r (as the joint fit settled it) from its uncertainty: log r + z·σ, z ~ N(0, 1) (antithetic
-  // in each complementary pair of replicates), σ the pair's ratio evidence σ (RatioEvidence::log_sigma; EXIF's
-  // nominal σ when the evidence was not combined or r is the nominal one). The half-samples alone see only the
-  // images' sampling error, not the error of the r the joint fit holds, which biases φ along φ^γ, r^γ.
+  // The band's replicates also draw each pair's r (as the joint fit settled it) from its uncertainty: log r + z·σ,
+  // z ~ N(0, 1) (antithetic in each complementary pair of replicates), σ the pair's ratio evidence σ
+  // (RatioEvidence::log_sigma; EXIF's nominal σ when the evidence was not combined or r is the nominal one). The
+  // half-samples alone see only the images' sampling error, not the error of the r the joint fit holds, which
+  // biases φ along φ^γ, r^γ.
   // false: r as the joint fit settled it in every replicate.
   bool band_varies_ratio = true;
   VerdictOptions verdict;  // the joint verdict's thresholds

@@ -11,7 +11,7 @@
 // At the joint φ the closed-form r of each pair (the least-squares r of its rows, as Eq. 25 does for the seed
 // objective) is reported; with JointCrfFitOptions::ratio_rounds each r_p then moves there and φ is refitted, until
 // no r moves (alternating, as Eq. 25 alternates with φ in a single pair). Then the pairs' relative exposures come
-// from all their data: a pair's r off by 9 % alone no longer bends the common φ (docs/RESULTS.md#joint-ratio-rounds).
+// from all their data, and the pairs' r agree with one another (docs/RESULTS.md#joint-ratio-rounds).
 // The common exponent is not fixed by the rounds: φ^γ with every r_p^γ fits all the pairs alike, so it stays
 // where the starting r put it. Each pair's misfit is reported too: its rows' energy at the joint φ and r against
 // their energy at the pair's own φ and r (the energy is scale-free, so only φ's shape over the pair's data
