@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -31,6 +32,7 @@
 #include "crfcal/io/response_io.hpp"
 #include "crfcal/joint_calibration.hpp"
 #include "crfcal/pair_calibration.hpp"
+#include "bench_real_regime.hpp"
 #include "progress.hpp"
 
 namespace crfcal::app {
@@ -56,6 +58,13 @@ struct JointBenchArgs {
   // joint fit cannot (JointPairSummary::joint_misfit). 0: none.
   double offset = 0;
   int offset_pair = 1;
+  // The real regime (as `bench pairs --ratio R`, R > 2): every pair at r = R, its blurred shot normally exposed at
+  // the noise camera's lowest ISO (or blurred_iso) and its sharp shot underexposed by R at R× that ISO, each with
+  // the camera's measured noise. 0: the sharp-normal pairs at r = 2, 2, 1 (the default).
+  double ratio = 0;
+  std::string noise_camera = "LGE Nexus 5";
+  std::string noise_profiles;  // darktable noiseprofiles.json (empty: --data's, else the bundled excerpt)
+  double blurred_iso = 0;
   // The joint band above the data (CurveBandOptions::above_data_prior): "learned" (the prior learned from the bundled
   // camera curves without the case's camera, as `calibrate` uses it with all of them) or "bounds" (exponent bounds).
   std::string band_above = "learned";
@@ -74,6 +83,9 @@ const char* kKernels[] = {"levin:1", "levin:3", "levin:8", "levin:2", "levin:5",
 // differ; r = 2 for the darker pairs (the blurred shot reaches higher), 1 for the brighter (it would clip).
 double pairExposure(int p, int n) { return n == 1 ? 0.2 : 0.04 * std::pow(0.5 / 0.04, double(p) / (n - 1)); }
 double pairRatio(int p, int n) { return pairExposure(p, n) < 0.25 ? 2.0 : 1.0; }
+
+// The pair's true r: the real regime's for every pair, else pairRatio.
+double pairRatio(const JointBenchArgs& args, int p) { return args.ratio > 0 ? args.ratio : pairRatio(p, args.pairs); }
 
 struct Scores {
   ChannelComparison union_range;  // against the truth over the union's range
@@ -109,7 +121,8 @@ struct Totals {
 
 class JointRun {
  public:
-  JointRun(const JointBenchArgs& a, io::OutputDirectory& o) : args(a), out(o) {}
+  JointRun(const JointBenchArgs& a, io::OutputDirectory& o, std::optional<io::CameraNoiseProfile> camera)
+      : args(a), out(o), noise_camera(std::move(camera)) {}
 
   void runCurve(const std::string& crf, const std::vector<cv::Mat>& photos) {
     const std::string name = fs::path(crf.substr(crf.rfind(':') + 1)).stem().string();
@@ -123,7 +136,7 @@ class JointRun {
       const std::string kernel_spec = kKernels[p % std::size(kKernels)];
       results.push_back(calibrateCase(photos[p % photos.size()], truth_model, kernel_spec, p, dir));
       pairs_json.push_back({{"kernel", kernel_spec}, {"exposure", pairExposure(p, args.pairs)},
-                            {"ratio", pairRatio(p, args.pairs)}, {"ratio_fitted", results.back().fits.at("G").ratio},
+                            {"ratio", pairRatio(args, p)}, {"ratio_fitted", results.back().fits.at("G").ratio},
                             {"blurred_offset", p + 1 == args.offset_pair ? args.offset : 0.0},
                             {"covered_G", results.back().covered_range.at("G")},
                             {"inverse_crf_G", results.back().fits.at("G").inverse_crf}});
@@ -159,7 +172,7 @@ class JointRun {
       char extra[200];
       std::snprintf(extra, sizeof extra,
                     "%s, exposure %.2f, r %.0f (fitted %.3f; joint fit at %.3f; at the joint phi %.3f), misfit %.2fx",
-                    kKernels[p % std::size(kKernels)], pairExposure(p, args.pairs), pairRatio(p, args.pairs),
+                    kKernels[p % std::size(kKernels)], pairExposure(p, args.pairs), pairRatio(args, p),
                     results[p].fits.at("G").ratio, in_joint.ratio.at("G"), in_joint.ratio_at_joint_phi.at("G"),
                     misfit == in_joint.joint_misfit.end() ? std::nan("") : misfit->second);
       pairs_json[p]["ratio_at_joint_phi"] = in_joint.ratio_at_joint_phi.at("G");
@@ -244,8 +257,15 @@ class JointRun {
   PairCalibrationResult calibrateCase(const cv::Mat& photo, const ResponseModel& truth, const std::string& kernel_spec,
                                       int p, const fs::path& dir) {
     HandheldPairOptions ho;
-    ho.ratio = pairRatio(p, args.pairs);
+    ho.ratio = pairRatio(args, p);
     ho.exposure = pairExposure(p, args.pairs);
+    std::optional<RealExposure> exposure;
+    if (noise_camera) {
+      exposure = realExposure(*noise_camera, args.blurred_iso, ho.ratio);
+      ho.normally_exposed = HandheldPairOptions::NormallyExposed::Blurred;
+      ho.sharp_noise = exposure->noise_sharp;
+      ho.blurred_noise = exposure->noise_blurred;
+    }
     const double angle = (p + 1) * 2.399963;  // a different handheld motion per pair (golden angle)
     ho.shift_x = 4.3 * std::cos(angle);
     ho.shift_y = 4.3 * std::sin(angle);
@@ -266,6 +286,7 @@ class JointRun {
     es.f_number = eb.f_number = 4.0;
     eb.iso = 100;
     eb.exposure_time = ho.ratio * 1.04 * 800 * 0.01 / 100;  // EXIF 4 % off the truth, as bench pairs
+    if (exposure) setRealExif(es, eb, *exposure, ho.ratio, 0.04);
     io::writeExif(dir / "sharp.jpg", es);
     io::writeExif(dir / "blurred.jpg", eb);
     const io::LoadedPair loaded = io::loadPair(dir / "sharp.jpg", dir / "blurred.jpg");
@@ -279,12 +300,16 @@ class JointRun {
 
   const JointBenchArgs& args;
   io::OutputDirectory& out;
+  std::optional<io::CameraNoiseProfile> noise_camera;  // the real regime's (--ratio)
   Progress progress{false};
   std::ostringstream table;
   Totals totals;
 };
 
 int runJointBench(const JointBenchArgs& args) {
+  if (args.ratio > 0 && args.ratio <= 2)
+    throw Error("--ratio " + std::to_string(args.ratio) + ": the real regime is for r > 2 (0: the default pairs)",
+                ErrorSubject::options);
   if (args.offset != 0 && args.offset_pair > args.pairs)
     throw Error("--offset-pair " + std::to_string(args.offset_pair) + " names no pair (--pairs " +
                 std::to_string(args.pairs) + ")", ErrorSubject::options);
@@ -309,10 +334,20 @@ int runJointBench(const JointBenchArgs& args) {
     if (s < 1) cv::resize(photo, photo, cv::Size(), s, s, cv::INTER_AREA);
     photos.push_back(photo);
   }
-  JointRun run(args, out);
+  std::optional<io::CameraNoiseProfile> noise_camera;
+  if (args.ratio > 0)
+    noise_camera = io::readCameraNoiseProfile(
+        args.noise_profiles.empty() ? io::defaultNoiseProfiles(args.data) : fs::path(args.noise_profiles),
+        args.noise_camera);
+  JointRun run(args, out, noise_camera);
   std::ostringstream header;
   header << "Joint fit of " << args.pairs << " semi-real pairs per camera curve (photos, kernels and exposures "
          << "differ per pair); phi_G against the truth.";
+  if (noise_camera) {
+    const RealExposure e = realExposure(*noise_camera, args.blurred_iso, args.ratio);
+    header << " Real regime: every pair at r = " << args.ratio << ", noise of " << noise_camera->camera() << ", ISO "
+           << e.iso_sharp << " / " << e.iso_blurred << " (sharp / blurred).";
+  }
   if (args.offset != 0)
     header << " Pair " << args.offset_pair << "'s blurred shot has an offset " << args.offset << ".";
   header << "\n\n| curve | fit | covered G | RMSE [0, 1] | RMSE over the "
@@ -354,6 +389,23 @@ const BenchRegistration registration(
                          "phi, then refitting phi (0: r held)")
           ->capture_default_str()
           ->check(CLI::Range(0, 20));
+      command.add_option("--ratio", args->ratio,
+                         "The real regime: every pair at this r (> 2), the blurred shot normally exposed at the noise "
+                         "camera's lowest ISO, the sharp one underexposed by r at r x that ISO, each with the camera's "
+                         "measured noise (0: the sharp-normal pairs at r = 2, 2, 1)")
+          ->capture_default_str()
+          ->check(CLI::Range(0.0, 16.0));
+      command.add_option("--noise-camera", args->noise_camera,
+                         "--ratio: camera whose darktable noise profile the shots get, \"maker model\"")
+          ->capture_default_str();
+      command.add_option("--noise-profiles", args->noise_profiles,
+                         "--ratio: darktable noiseprofiles.json (default: --data's noise_profiles/noiseprofiles.json, "
+                         "else the bundled excerpt samples/noise_profiles/)")
+          ->check(CLI::ExistingFile);
+      command.add_option("--blurred-iso", args->blurred_iso,
+                         "--ratio: ISO of the blurred shot (0: the noise camera's lowest profiled ISO)")
+          ->capture_default_str()
+          ->check(CLI::NonNegativeNumber);
       command.add_option("--offset", args->offset,
                          "An additive irradiance offset (fraction of full scale) in the blurred shot of one pair of "
                          "each curve (--offset-pair): a flare or black level of that shot alone, which the joint fit "

@@ -281,12 +281,17 @@ TEST(CalibrateJointCli, RefusesAMissingPairFileWithOneLineAndWritesNothing) {
   EXPECT_FALSE(fs::exists(dir / "out"));
 }
 
-TEST(BenchJointCli, AnOffsetForAPairThatIsNotThereIsRefusedWithOneLineAndWritesNothing) {
+TEST(BenchJointCli, AnOffsetForAPairThatIsNotThereOrARatioOutsideTheRealRegimeIsRefusedAndWritesNothing) {
   test::TempDir dir;
   const auto r = test::run(bin() + " bench joint --pairs 3 --offset 0.01 --offset-pair 4 -o " + (dir / "out").string());
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("--offset-pair 4 names no pair (--pairs 3)"), std::string::npos) << r.output;
   EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "out"));
+  const auto low = test::run(bin() + " bench joint --ratio 1.5 -o " + (dir / "out").string());
+  EXPECT_EQ(low.exit_code, 1) << low.output;
+  EXPECT_NE(low.output.find("the real regime is for r > 2"), std::string::npos) << low.output;
+  EXPECT_EQ(std::count(low.output.begin(), low.output.end(), '\n'), 1) << low.output;
   EXPECT_FALSE(fs::exists(dir / "out"));
 }
 
