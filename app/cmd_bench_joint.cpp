@@ -116,7 +116,6 @@ struct Totals {
   BandScore band;
   int band_curves = 0;
   std::vector<double> largest_misfit;  // per curve: the largest of its pairs' misfits
-  int disagreeing = 0;                 // curves whose joint verdict names the pairs' disagreement
 };
 
 class JointRun {
@@ -191,8 +190,6 @@ class JointRun {
       if (const auto m = pair.joint_misfit.find("G"); m != pair.joint_misfit.end())
         largest = std::max(largest, m->second);
     totals.largest_misfit.push_back(largest);
-    for (const std::string& reason : joint.verdicts.at("G").reasons)
-      if (reason.find("the pairs disagree") != std::string::npos) ++totals.disagreeing;
     ++totals.curves;
     totals.joint_full += j.union_range.rmse, totals.joint_union += j.union_range.rmse_covered;
     totals.joint_shape += j.union_range.rmse_covered_aligned;
@@ -227,9 +224,9 @@ class JointRun {
       misfits += value;
     }
     std::snprintf(line, sizeof line,
-                  "\nPairs' misfit (the joint phi's energy on a pair's rows over its own phi's): largest per curve %s; "
-                  "the joint verdict names the pairs' disagreement (a misfit above %.3g) for %d of %d curves\n",
-                  misfits.c_str(), JointCalibrationOptions{}.max_joint_misfit, totals.disagreeing, totals.curves);
+                  "\nPairs' misfit (the joint phi's energy on a pair's rows over that of a phi fitted to the pair "
+                  "alone at the same r): largest per curve %s\n",
+                  misfits.c_str());
     text += line;
     if (totals.band_curves > 0) {
       const BandScore& b = totals.band;

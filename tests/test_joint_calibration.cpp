@@ -40,7 +40,7 @@ struct RangePair {
     sim.seed = seed;
     pair = simulatePair(lo + (hi - lo) * test::levinImage(image), kTruth, kernel, sim);
   }
-  JointFitPair input() const { return {pair.sharp, pair.blurred, kernel, CrfFitOptions{}, ratio, {}}; }
+  JointFitPair input() const { return {pair.sharp, pair.blurred, kernel, CrfFitOptions{}, ratio}; }
 };
 
 // RMSE of a against b over x in [lo, hi]; shape: after a's best common scale onto b there (φ → sφ leaves Eq. 4
@@ -177,7 +177,9 @@ std::vector<PairCalibrationResult> offsetPairs(double offset_factor) {
   return results;
 }
 
-TEST(JointCalibration, AnOffsetInOnePairShowsAsMisfitAndMakesTheJointVerdictWeak) {
+TEST(JointCalibration, AnOffsetInOnePairShowsAsTheJointMisfit) {
+  // At r = 2 and 6: agreeing pairs fit the joint φ about as well as a φ of their own at the same r; an offset in
+  // one pair's blurred shot, which that pair alone absorbs, leaves a misfit over 10 times larger.
   JointCalibrationOptions options;
   options.band.replicates = 0;
   const JointCalibrationResult clean = calibrateJointly(offsetPairs(0), options);
@@ -187,18 +189,10 @@ TEST(JointCalibration, AnOffsetInOnePairShowsAsMisfitAndMakesTheJointVerdictWeak
     for (const auto& pair : r.pairs) m = std::max(m, pair.joint_misfit.at("G"));
     return m;
   };
-  auto disagreement = [](const JointCalibrationResult& r) {
-    for (const auto& reason : r.verdicts.at("G").reasons)
-      if (reason.find("the pairs disagree") != std::string::npos) return true;
-    return false;
-  };
   const std::string numbers = "clean:\n" + clean.summary() + "\noffset in pair 1:\n" + offset.summary();
-  EXPECT_LT(largestMisfit(clean), 2.0) << numbers;
-  EXPECT_FALSE(disagreement(clean)) << numbers;
-  EXPECT_EQ(clean.verdicts.at("G").level, VerdictLevel::ok) << numbers;
-  EXPECT_GT(largestMisfit(offset), options.max_joint_misfit) << numbers;
-  EXPECT_TRUE(disagreement(offset)) << numbers;
-  EXPECT_NE(offset.verdicts.at("G").level, VerdictLevel::ok) << numbers;
+  EXPECT_LT(largestMisfit(clean), 1.5) << numbers;
+  EXPECT_GT(largestMisfit(offset), 10.0) << numbers;
+  EXPECT_GT(largestMisfit(offset), 10 * largestMisfit(clean)) << numbers;
   std::cout << numbers << "\n";
 }
 

@@ -45,9 +45,8 @@ std::vector<JointFitPair> jointInputs(const std::vector<PairCalibrationResult>& 
     const PairFitInputs& in = pair.fit_inputs;
     const bool nominal = options.ratio_source == JointCalibrationOptions::RatioSource::nominal;
     const double ratio = nominal ? pair.fits.at(c).nominal_ratio : pair.fits.at(c).ratio;
-    JointFitPair p{in.sharp.at(c), in.blurred.at(c), in.kernel, in.options, ratio, {}};
+    JointFitPair p{in.sharp.at(c), in.blurred.at(c), in.kernel, in.options, ratio};
     if (const auto it = in.sharp_error.find(c); it != in.sharp_error.end()) p.options.sharp_error_bound = it->second;
-    if (!nominal) p.own_inverse_crf = pair.fits.at(c).inverse_crf;  // fitted at that r: the misfit's reference
     inputs.push_back(std::move(p));
   }
   return inputs;
@@ -89,7 +88,6 @@ CurveBand jointBand(const std::vector<JointFitPair>& inputs, const std::vector<d
     std::vector<JointFitPair> half = inputs;
     for (std::size_t p = 0; p < half.size(); ++p) {
       if (static_cast<int>(masks[p].size()) > j) half[p].options.pixel_selection = masks[p][j];
-      half[p].own_inverse_crf.clear();  // the replicates' misfits are not read
       z[p] = j % 2 ? -z[p] : normal(rng);
       half[p].ratio *= std::exp(z[p] * ratio_log_sigmas[p]);
     }
@@ -141,21 +139,7 @@ void judgeJoint(JointCalibrationResult& result, const JointCalibrationOptions& o
       v.reasons.insert(v.reasons.begin(), text + "): their r, where the joint fit starts, is in doubt");
       v.level = std::max(v.level, VerdictLevel::weak);
     }
-    std::vector<std::string> disagreeing;
-    for (std::size_t p = 0; p < result.pairs.size(); ++p) {
-      const auto misfit = result.pairs[p].joint_misfit.find(c);
-      if (misfit != result.pairs[p].joint_misfit.end() && misfit->second > options.max_joint_misfit)
-        disagreeing.push_back(format("pair %.0f ", double(p + 1)) + format("%.3gx", misfit->second));
-    }
-    if (!disagreeing.empty()) {
-      std::string text = "the joint phi fits a pair's data far worse than that pair's own phi (";
-      for (std::size_t i = 0; i < disagreeing.size(); ++i) text += (i ? ", " : "") + disagreeing[i];
-      v.reasons.push_back(text + format(" > %.3gx)", options.max_joint_misfit) +
-                          ": the pairs disagree (an offset in one shot, a tone curve of its own or a wrong r held); "
-                          "compare the pairs' own curves");
-      v.level = std::max(v.level, VerdictLevel::weak);
-    }
-    if (passed && doubtful.empty() && disagreeing.empty())
+    if (passed && doubtful.empty())
       v.reasons.push_back(std::to_string(result.pairs.size()) + " pairs, each ok; data of the union cover " +
                           format("%.2f-%.2f", result.covered_range.at(c).first, result.covered_range.at(c).second));
   }
@@ -201,10 +185,8 @@ std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pa
   JointCrfFitOptions fit_options;
   fit_options.model = options.model;
   fit_options.ratio_rounds = ratios.empty() ? options.ratio_rounds : 0;
-  for (std::size_t p = 0; p < inputs.size() && !ratios.empty(); ++p) {
-    inputs[p].own_ratio = inputs[p].ratio;  // the r its own φ was fitted at: the misfit's reference
-    inputs[p].ratio = ratios[p];
-  }
+  fit_options.pair_misfits = true;
+  for (std::size_t p = 0; p < inputs.size() && !ratios.empty(); ++p) inputs[p].ratio = ratios[p];
   const JointCrfFitResult joint = fitInverseCrfJointly(inputs, fit_options);
   std::pair<double, double> covered{1, 0};
   for (std::size_t p = 0; p < pairs.size(); ++p) {
@@ -232,6 +214,7 @@ std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pa
     for (std::size_t p = 0; p < inputs.size(); ++p) inputs[p].ratio = joint.ratios[p];
     JointCrfFitOptions band_fit = fit_options;
     band_fit.ratio_rounds = 0;
+    band_fit.pair_misfits = false;  // the replicates' misfits are not read
     result.bands[c] = jointBand(inputs, ratioLogSigmas(pairs, options), joint, band_fit, covered, options.band);
     result.timings["joint_band"] += secondsSince(start);
     for (std::size_t p = 0; p < pairs.size(); ++p)
@@ -247,8 +230,6 @@ std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pa
 void JointCalibrationOptions::check() const {
   if (ratio_rounds < 0 || ratio_rounds > 20)
     throw InvalidInput("joint calibration: ratio_rounds must be in 0..20", ErrorSubject::options);
-  if (!(max_joint_misfit >= 1))
-    throw InvalidInput("joint calibration: max_joint_misfit must be >= 1", ErrorSubject::options);
   model.check();
   band.check();
   verdict.check();
@@ -270,7 +251,7 @@ std::string JointCalibrationResult::summary() const {
       if (const auto it = pairs[p].own_curve_inside_band.find(c); it != pairs[p].own_curve_inside_band.end())
         s << format(", its own phi inside the joint band over its range: %.0f %%", 100 * it->second);
       if (const auto it = pairs[p].joint_misfit.find(c); it != pairs[p].joint_misfit.end())
-        s << format(", misfit %.3gx its own phi's", it->second);
+        s << format(", misfit %.3gx", it->second);
     }
   }
   for (const auto& [c, band] : bands) s << "\nband " << c << ": " << band.summary();

@@ -182,6 +182,23 @@ void fitStacked(const MomentProblem& joint, const NoiseOperators& noise, const C
   }
 }
 
+// The energy of pair p's rows at a φ fitted to them alone at r (the same model, priors and choice as the joint
+// fit): the reference of the pair's misfit. The pair's problem is stacked alone, so r_p is held as in the joint fit.
+double ownEnergy(const PairProblems& built, std::size_t p, double ratio, const CrfFitOptions& model) {
+  const MomentProblem& problem = built.problems[p];
+  MomentProblem alone;
+  alone.omega.resize(0);
+  appendMoments(problem, ratio, alone);
+  alone.level_bins = problem.level_bins;
+  alone.level_operator = nullptr;  // applied in appendMoments
+  alone.covered_levels = problem.covered_levels;
+  CrfFitResult fit;
+  fit.covered_levels = problem.covered_levels;
+  fitStacked(alone, built.noise[p], model, fit);
+  const MomentSystem sys = problem.system(-1);
+  return momentEnergy(sys, onLevelGrid(fit.inverse_crf, sys.levels()), ratio);
+}
+
 }  // namespace
 
 JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, const JointCrfFitOptions& options) {
@@ -230,11 +247,7 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
   for (std::size_t p = 0; p < built.problems.size(); ++p) {
     const MomentSystem sys = built.problems[p].system(-1);
     out.energies.push_back(momentEnergy(sys, onLevelGrid(result.inverse_crf, sys.levels()), out.ratios[p]));
-    // The same rows at the pair's own φ and the r its own fit had: the pair's misfit is the ratio of the two
-    // (scale-free).
-    const std::vector<double>& own = pairs[p].own_inverse_crf;
-    const double own_ratio = pairs[p].own_ratio > 0 ? pairs[p].own_ratio : out.start_ratios[p];
-    out.own_energies.push_back(own.empty() ? -1.0 : momentEnergy(sys, onLevelGrid(own, sys.levels()), own_ratio));
+    out.own_energies.push_back(options.pair_misfits ? ownEnergy(built, p, out.ratios[p], options.model) : -1.0);
   }
   result.timings.total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return out;

@@ -13,11 +13,12 @@
 // no r moves (alternating, as Eq. 25 alternates with φ in a single pair). Then the pairs' relative exposures come
 // from all their data, and the pairs' r agree with one another (docs/RESULTS.md#joint-ratio-rounds).
 // The common exponent is not fixed by the rounds: φ^γ with every r_p^γ fits all the pairs alike, so it stays
-// where the starting r put it. Each pair's misfit is reported too: its rows' energy at the joint φ and r against
-// their energy at the pair's own φ and r (the energy is scale-free, so only φ's shape over the pair's data
-// counts). Pairs of one camera agree, and their misfit stays small; a pair whose shots break what the others
-// share (an offset in one shot, which a single pair absorbs into its own φ + c / (r − 1); a tone curve of its own)
-// cannot be fitted by the common φ, and its misfit grows (docs/RESULTS.md#joint-misfit).
+// where the starting r put it. Each pair's misfit can be measured too (pair_misfits): its rows' energy at the
+// joint φ against their energy at a φ fitted to that pair alone at the same r (the energy is scale-free, so only
+// φ's shape over the pair's data counts, and at one r the exponent valley is out of it: a pair whose own r was off
+// is not a disagreement). Pairs of one camera agree, and their misfit stays small; a pair whose shots break what
+// the others share (an offset in one shot, which a single pair absorbs into its own φ + c / (r − 1); a tone curve
+// of its own) cannot be fitted by the common φ, and its misfit grows (docs/RESULTS.md#joint-misfit).
 // Pure computation: no file I/O, no printing.
 #include <string>
 #include <utility>
@@ -37,10 +38,6 @@ struct JointFitPair {
   // error bound. Their model, prior and ratio settings are not used (JointCrfFitOptions::model decides those).
   CrfFitOptions options;
   double ratio = 1;        // r_p (> 0): held, or the start of JointCrfFitOptions::ratio_rounds
-  // The pair's own φ (its single-pair fit, 1024 samples of [0, 1]) for JointCrfFitResult::own_energies; empty: the
-  // pair's misfit is not measured.
-  std::vector<double> own_inverse_crf;
-  double own_ratio = 0;  // the r own_inverse_crf was fitted at (≤ 0: `ratio`)
 };
 
 struct JointCrfFitOptions {
@@ -53,6 +50,9 @@ struct JointCrfFitOptions {
   // exponent (φ^γ with every r_p^γ fits alike) stays where the starting r put it.
   int ratio_rounds = 0;
   double ratio_tolerance = 1e-3;  // the rounds stop when no pair's r moves by more than this (in log r)
+  // Each pair also fitted alone, at the r the joint fit gives it, with the same model and priors: the reference of
+  // its misfit (JointCrfFitResult::misfit). One more fit per pair; off: no misfit measured.
+  bool pair_misfits = false;
   void check() const;  // throws InvalidInput
 };
 
@@ -65,9 +65,12 @@ struct JointCrfFitResult {
   std::vector<std::pair<int, int>> covered_levels;   // per pair (0.1 % tails dropped, as CrfFitResult's)
   std::vector<CrfPixelAccounting> pixels;            // per pair
   std::vector<double> energies;                      // per pair: its rows' energy at the joint φ (per unit weight)
-  std::vector<double> own_energies;  // per pair: its rows' energy at its own φ and own r (< 0: no own φ given)
-  // energies[p] / own_energies[p]: how much worse the joint φ fits pair p's data than the pair's own φ does (≈ 1
-  // when the pairs agree); NaN without an own φ, or where the own φ's energy is 0 or not finite (flat over a bin).
+  // per pair: its rows' energy at its own φ, fitted to them alone at the same r (JointCrfFitOptions::pair_misfits;
+  // < 0: not measured)
+  std::vector<double> own_energies;
+  // energies[p] / own_energies[p]: how much worse the joint φ fits pair p's data than a φ fitted to that pair alone
+  // at the same r (≥ about 1; ≈ 1 when the pairs agree); NaN when not measured, or when the own fit's energy is 0 or
+  // not finite.
   double misfit(std::size_t p) const;
   std::string summary() const;
 };
