@@ -36,8 +36,8 @@ std::vector<std::string> commonChannels(const std::vector<PairCalibrationResult>
   return channels;
 }
 
-// Channel `c` of every pair as the joint fitter takes it; r starting at the pair's final single-pair r or its nominal
-// one (options.ratio_source).
+// Channel `c` of every pair as the joint fitter takes it; r starting at the pair's final single-pair r or its
+// nominal one (options.ratio_source).
 std::vector<JointFitPair> jointInputs(const std::vector<PairCalibrationResult>& pairs, const std::string& c,
                                       const JointCalibrationOptions& options) {
   std::vector<JointFitPair> inputs;
@@ -181,13 +181,13 @@ std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pa
   auto start = Clock::now();
   std::vector<JointFitPair> inputs = jointInputs(pairs, c, options);
   std::vector<double> own_start;
-  for (JointFitPair& input : inputs) own_start.push_back(input.ratio);
+  for (const JointFitPair& input : inputs) own_start.push_back(input.ratio);
   JointCrfFitOptions fit_options;
   fit_options.model = options.model;
   fit_options.ratio_rounds = ratios.empty() ? options.ratio_rounds : 0;
   fit_options.pair_misfits = true;
   for (std::size_t p = 0; p < inputs.size() && !ratios.empty(); ++p) inputs[p].ratio = ratios[p];
-  const JointCrfFitResult joint = fitInverseCrfJointly(inputs, fit_options);
+  JointCrfFitResult joint = fitInverseCrfJointly(inputs, fit_options);
   std::pair<double, double> covered{1, 0};
   for (std::size_t p = 0; p < pairs.size(); ++p) {
     JointPairSummary& summary = result.pairs[p];
@@ -221,7 +221,7 @@ std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pa
       result.pairs[p].own_curve_inside_band[c] =
           fractionInside(pairs[p].fits.at(c).inverse_crf, result.bands[c], result.pairs[p].covered_range.at(c));
   }
-  result.fits[c] = joint.fit;
+  result.fits[c] = std::move(joint.fit);
   return joint.ratios;
 }
 

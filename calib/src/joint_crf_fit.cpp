@@ -92,7 +92,7 @@ std::string JointCrfFitResult::summary() const {
       << " rounds; at the joint phi " << ratios_at_joint_phi[p] << "), levels " << covered_levels[p].first << "-"
       << covered_levels[p].second << ", " << pixels[p].used
       << " pixels, energy " << energies[p];
-    if (std::isfinite(misfit(p))) s << " (" << misfit(p) << "x its energy at its own phi)";
+    if (std::isfinite(misfit(p))) s << " (" << misfit(p) << "x that of a fit of this pair alone at its r)";
   }
   return s.str();
 }
@@ -182,9 +182,11 @@ void fitStacked(const MomentProblem& joint, const NoiseOperators& noise, const C
   }
 }
 
-// The energy of pair p's rows at a φ fitted to them alone at r (the same model, priors and choice as the joint
-// fit): the reference of the pair's misfit. The pair's problem is stacked alone, so r_p is held as in the joint fit.
-double ownEnergy(const PairProblems& built, std::size_t p, double ratio, const CrfFitOptions& model) {
+// The energy of pair p's rows (`sys`) at a φ fitted to them alone at r (the same model, priors and choice as the
+// joint fit): the reference of the pair's misfit. The pair's problem is stacked alone, so r_p is held as in the
+// joint fit.
+double ownEnergy(const PairProblems& built, std::size_t p, const MomentSystem& sys, double ratio,
+                 const CrfFitOptions& model) {
   const MomentProblem& problem = built.problems[p];
   MomentProblem alone;
   alone.omega.resize(0);
@@ -195,7 +197,6 @@ double ownEnergy(const PairProblems& built, std::size_t p, double ratio, const C
   CrfFitResult fit;
   fit.covered_levels = problem.covered_levels;
   fitStacked(alone, built.noise[p], model, fit);
-  const MomentSystem sys = problem.system(-1);
   return momentEnergy(sys, onLevelGrid(fit.inverse_crf, sys.levels()), ratio);
 }
 
@@ -220,6 +221,8 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
   for (const auto& px : out.pixels) result.pixels.used += px.used, result.pixels.total += px.total;
   for (const JointFitPair& pair : pairs) out.start_ratios.push_back(pair.ratio);
   out.ratios = out.start_ratios;
+  std::vector<MomentSystem> systems;  // each pair's rows without r (Ĥ and N apart): for its r and its energies
+  for (const MomentProblem& problem : built.problems) systems.push_back(problem.system(-1));
   // φ at the ratios; with ratio_rounds, each pair's r moved to its own least-squares r at that φ and φ refitted
   // (the pairs' relative exposures from all their data; the common exponent φ^γ, r^γ stays where the starts put it).
   for (int round = 0;; ++round) {
@@ -230,10 +233,8 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
     result.moment_bins = nonempty;
     fitStacked(joint, built.noise.front(), options.model, result);
     out.ratios_at_joint_phi.clear();
-    for (const MomentProblem& problem : built.problems) {
-      const MomentSystem sys = problem.system(-1);
+    for (const MomentSystem& sys : systems)
       out.ratios_at_joint_phi.push_back(ratioAt(sys, onLevelGrid(result.inverse_crf, sys.levels())));
-    }
     out.ratio_rounds = round;
     double moved = 0;  // in log r
     for (std::size_t p = 0; p < out.ratios.size(); ++p)
@@ -244,10 +245,10 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
       if (out.ratios_at_joint_phi[p] > 0) out.ratios[p] = out.ratios_at_joint_phi[p];
   }
   result.ratio = 1.0;
-  for (std::size_t p = 0; p < built.problems.size(); ++p) {
-    const MomentSystem sys = built.problems[p].system(-1);
+  for (std::size_t p = 0; p < systems.size(); ++p) {
+    const MomentSystem& sys = systems[p];
     out.energies.push_back(momentEnergy(sys, onLevelGrid(result.inverse_crf, sys.levels()), out.ratios[p]));
-    out.own_energies.push_back(options.pair_misfits ? ownEnergy(built, p, out.ratios[p], options.model) : -1.0);
+    out.own_energies.push_back(options.pair_misfits ? ownEnergy(built, p, sys, out.ratios[p], options.model) : -1.0);
   }
   result.timings.total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return out;
