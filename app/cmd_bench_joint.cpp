@@ -185,7 +185,7 @@ class JointRun {
       best_union = std::min(best_union, s.union_range.rmse_covered);
       best_shape = std::min(best_shape, s.union_range.rmse_covered_aligned);
     }
-    double largest = -1;  // none measured (each pair's r started at its nominal one: no own fit at that r)
+    double largest = -1;  // -1: none measured (no pair alone fitted to a finite energy)
     for (const JointPairSummary& pair : joint.pairs)
       if (const auto m = pair.joint_misfit.find("G"); m != pair.joint_misfit.end())
         largest = std::max(largest, m->second);
@@ -304,9 +304,12 @@ class JointRun {
 };
 
 int runJointBench(const JointBenchArgs& args) {
-  if (args.ratio > 0 && args.ratio <= 2)
-    throw Error("--ratio " + std::to_string(args.ratio) + ": the real regime is for r > 2 (0: the default pairs)",
+  if (args.ratio > 0 && args.ratio <= 2) {
+    char given[32];
+    std::snprintf(given, sizeof given, "%g", args.ratio);
+    throw Error(std::string("--ratio ") + given + ": the real regime is for r > 2 (0: the default pairs)",
                 ErrorSubject::options);
+  }
   if (args.offset != 0 && args.offset_pair > args.pairs)
     throw Error("--offset-pair " + std::to_string(args.offset_pair) + " names no pair (--pairs " +
                 std::to_string(args.pairs) + ")", ErrorSubject::options);
