@@ -36,7 +36,7 @@ struct JointCalibrationOptions {
   enum class RatioSource { pair_fit, nominal };
   RatioSource ratio_source = RatioSource::pair_fit;
   // Rounds that move each pair's r from that start to its least-squares r at the joint φ (JointCrfFitOptions::
-  // ratio_rounds; 0: held). The rounds stop once no r moves by 0.1 %; 10 is a cap they rarely reach. They run on G
+  // ratio_rounds; 0: held). The rounds stop once no r moves by 0.1 %, or after 10 (a cap). They run on G
   // (else the first channel); the other channels are fitted at the r they settled at, one r per pair as in a single
   // pair. Measured on `bench joint` (docs/RESULTS.md#joint-ratio-rounds): the pairs' r agree, and the joint φ's
   // shape error falls.
