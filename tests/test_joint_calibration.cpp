@@ -146,7 +146,7 @@ TEST(JointFit, RefusesABadPairNamingIt) {
 // `offset_factor` > 0 (that many times the effect search's threshold): a flare or black level of one shot, which
 // the pair alone absorbs into its own φ + c / (r − 1) (docs/RESULTS.md#effects-r-symmetry).
 std::vector<PairCalibrationResult> offsetPairs(double offset_factor) {
-  const fs::path curve = test::samples() / "camera_curves" / "CanonPowerShotG9.csv";
+  const std::filesystem::path curve = test::samples() / "camera_curves" / "CanonPowerShotG9.csv";
   const ResponseModel truth = TableModel{io::readCurveTable(curve)};
   std::vector<PairCalibrationResult> results;
   for (int p = 0; p < 2; ++p) {
