@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <memory>
 #include <optional>
@@ -58,6 +59,7 @@ struct JointBenchArgs {
   // joint fit cannot (JointPairSummary::joint_misfit). 0: none.
   double offset = 0;
   int offset_pair = 1;
+  bool joint_offsets = JointCalibrationOptions{}.pair_offsets;  // each pair's offset fitted in the rounds
   // The real regime (as `bench pairs --ratio R`, R > 2): every pair at r = R, its blurred shot normally exposed at
   // the noise camera's lowest ISO (or blurred_iso) and its sharp shot underexposed by R at R× that ISO, each with
   // the camera's measured noise. 0: the sharp-normal pairs at r = 2, 2, 1 (the default).
@@ -146,6 +148,7 @@ class JointRun {
                                                       : JointCalibrationOptions::RatioSource::pair_fit;
     options.band_varies_ratio = !args.band_fixed_ratio;
     options.ratio_rounds = args.joint_ratio_rounds;
+    options.pair_offsets = args.joint_offsets;
     // leave one camera out: the truth's camera is not among the prior's training curves
     if (args.band_above == "learned") options.band.above_data_prior = io::learnPriorFromCameraCurves({name});
     const JointCalibrationResult joint = calibrateJointly(results, options);
@@ -168,7 +171,7 @@ class JointRun {
       const Scores s = score(results[p].fits.at("G").inverse_crf, truth, union_range, results[p].covered_range.at("G"));
       const JointPairSummary& in_joint = joint.pairs[p];
       const auto misfit = in_joint.joint_misfit.find("G");
-      char extra[200];
+      char extra[240];
       std::snprintf(extra, sizeof extra,
                     "%s, exposure %.2f, r %.0f (fitted %.3f; joint fit at %.3f; at the joint phi %.3f), misfit %.2fx",
                     kKernels[p % std::size(kKernels)], pairExposure(p, args.pairs), pairRatio(args, p),
@@ -177,6 +180,11 @@ class JointRun {
       pairs_json[p]["ratio_at_joint_phi"] = in_joint.ratio_at_joint_phi.at("G");
       pairs_json[p]["ratio_joint_fit"] = in_joint.ratio.at("G");
       if (misfit != in_joint.joint_misfit.end()) pairs_json[p]["joint_misfit"] = misfit->second;
+      if (const auto offset = in_joint.offset.find("G"); offset != in_joint.offset.end()) {
+        pairs_json[p]["offset"] = offset->second;
+        const std::size_t used = std::strlen(extra);
+        std::snprintf(extra + used, sizeof extra - used, ", offset %+.4f", offset->second);
+      }
       table << row(name, "pair " + std::to_string(p + 1), s, extra);
       totals.single_full += s.union_range.rmse / args.pairs;
       totals.single_union += s.union_range.rmse_covered / args.pairs;
@@ -389,6 +397,9 @@ const BenchRegistration registration(
                          "phi, then refitting phi (0: r held)")
           ->capture_default_str()
           ->check(CLI::Range(0, 20));
+      command.add_flag("--joint-offsets", args->joint_offsets,
+                       "Fit each pair's additive irradiance offset (a flare or black level of one shot) in the rounds, "
+                       "beside its r");
       command.add_option("--ratio", args->ratio,
                          "The real regime: every pair at this r (> 2), the blurred shot normally exposed at the noise "
                          "camera's lowest ISO, the sharp one underexposed by r at r x that ISO, each with the camera's "

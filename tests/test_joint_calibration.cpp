@@ -141,25 +141,27 @@ TEST(JointFit, RefusesABadPairNamingIt) {
   EXPECT_THROW(fitInverseCrfJointly({good.input(), wrong_ratio}), InvalidInput);
 }
 
-// Two pairs of one camera (the Canon G9's measured curve) at r = 2 and r = 6, as calibratePair would hand them
-// over (fit inputs, their own φ at their r), with an additive offset in the r = 2 pair's blurred shot when
-// `offset_factor` > 0 (that many times the effect search's threshold): a flare or black level of one shot, which
+// Pairs of one camera (the Canon G9's measured curve) at `ratios` (r = 2 and 6 by default), as calibratePair would
+// hand them over (fit inputs, their own φ at their r), with an additive offset in pair `offset_pair`'s blurred shot
+// when `offset_factor` > 0 (that many times the effect search's threshold): a flare or black level of one shot, which
 // the pair alone absorbs into its own φ + c / (r − 1) (docs/RESULTS.md#effects-r-symmetry).
-std::vector<PairCalibrationResult> offsetPairs(double offset_factor) {
+std::vector<PairCalibrationResult> offsetPairs(double offset_factor, const std::vector<double>& ratios = {2.0, 6.0},
+                                               std::size_t offset_pair = 0) {
   const std::filesystem::path curve = test::samples() / "camera_curves" / "CanonPowerShotG9.csv";
   const ResponseModel truth = TableModel{io::readCurveTable(curve)};
   std::vector<PairCalibrationResult> results;
-  for (int p = 0; p < 2; ++p) {
-    const cv::Mat kernel = test::levinKernel(p == 0 ? 2 : 5);
+  const int kernels[] = {2, 5, 7}, images[] = {1, 4, 2};
+  for (std::size_t p = 0; p < ratios.size() && p < std::size(kernels); ++p) {
+    const cv::Mat kernel = test::levinKernel(kernels[p]);
     cv::Mat photo;
-    test::levinImage(p == 0 ? 1 : 4).convertTo(photo, CV_8U, 255.0);
-    const bool plant = p == 0 && offset_factor > 0;
+    test::levinImage(images[p]).convertTo(photo, CV_8U, 255.0);
+    const bool plant = p == offset_pair && offset_factor > 0;
     PlantedPair planted;
     for (std::uint64_t seed = 1; seed < 40; ++seed) {  // the first seed that puts the offset in the blurred shot
       PlantingOptions po;
       po.effect = plant ? "black_level_offset" : "none";
       po.strength = offset_factor * plantingThreshold("black_level_offset");
-      po.ratio = p == 0 ? 2.0 : 6.0;
+      po.ratio = ratios[p];
       po.exposure = 0.45 / po.ratio;
       po.seed = seed;
       planted = plantEffect(photo, truth, kernel, po);
@@ -196,6 +198,37 @@ TEST(JointCalibration, AnOffsetInOnePairShowsAsTheJointMisfit) {
   EXPECT_GT(largestMisfit(offset), 10.0) << numbers;
   EXPECT_GT(largestMisfit(offset), 10 * largestMisfit(clean)) << numbers;
   std::cout << numbers << "\n";
+}
+
+TEST(JointCalibration, AnOffsetHiddenInThePairAtRatioOneIsFoundThereWithItsSize) {
+  // At r = 1 an offset cannot trade with φ's shift (φ + δ moves pair p's offset by δ (1 − r_p)), so the joint fit
+  // with each pair's offset finds it in that pair, at its size; clean pairs get no offset of that size.
+  JointCalibrationOptions options;
+  options.band.replicates = 0;
+  options.pair_offsets = true;
+  const double factor = 8, planted = factor * plantingThreshold("black_level_offset");
+  const std::vector<double> ratios{2.0, 6.0, 1.0};
+  const JointCalibrationResult clean = calibrateJointly(offsetPairs(0, ratios), options);
+  const JointCalibrationResult offset = calibrateJointly(offsetPairs(factor, ratios, 2), options);
+  const std::string numbers = "clean:\n" + clean.summary() + "\noffset in pair 3:\n" + offset.summary();
+  for (const JointPairSummary& pair : clean.pairs) EXPECT_LT(std::abs(pair.offset.at("G")), 0.3 * planted) << numbers;
+  EXPECT_NEAR(offset.pairs[2].offset.at("G"), planted, 0.25 * planted) << numbers;
+  EXPECT_EQ(offset.pairs[0].offset.at("G"), 0.0) << numbers;
+  EXPECT_EQ(offset.pairs[1].offset.at("G"), 0.0) << numbers;
+  std::cout << numbers << "\n";
+}
+
+TEST(JointFit, PairOffsetsMoveInTheRoundsAndAreRefusedWithoutThem) {
+  JointCrfFitOptions options;
+  options.pair_offsets = true;
+  options.ratio_rounds = 0;
+  EXPECT_THROW(options.check(), InvalidInput);
+  options.ratio_rounds = 1;
+  EXPECT_NO_THROW(options.check());
+  JointCalibrationOptions joint;
+  joint.pair_offsets = true;
+  joint.ratio_rounds = 0;
+  EXPECT_THROW(joint.check(), InvalidInput);
 }
 
 TEST(JointCalibration, EveryChannelOfAPairIsFittedAtOneRatio) {

@@ -184,7 +184,9 @@ std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pa
   for (const JointFitPair& input : inputs) own_start.push_back(input.ratio);
   JointCrfFitOptions fit_options;
   fit_options.model = options.model;
-  fit_options.ratio_rounds = ratios.empty() ? options.ratio_rounds : 0;
+  fit_options.pair_offsets = options.pair_offsets;
+  fit_options.hold_ratios = !ratios.empty();
+  fit_options.ratio_rounds = ratios.empty() || options.pair_offsets ? options.ratio_rounds : 0;
   fit_options.pair_misfits = true;
   for (std::size_t p = 0; p < inputs.size() && !ratios.empty(); ++p) inputs[p].ratio = ratios[p];
   JointCrfFitResult joint = fitInverseCrfJointly(inputs, fit_options);
@@ -199,6 +201,7 @@ std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pa
     summary.ratio_start[c] = own_start[p];
     summary.ratio[c] = joint.ratios[p];
     summary.ratio_at_joint_phi[c] = joint.ratios_at_joint_phi[p];
+    if (options.pair_offsets) summary.offset[c] = joint.offsets[p];
     if (std::isfinite(joint.misfit(p))) summary.joint_misfit[c] = joint.misfit(p);
     summary.pixels_used[c] = joint.pixels[p].used;
     const auto verdict = pairs[p].verdicts.find(c);
@@ -211,9 +214,13 @@ std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pa
     start = Clock::now();
     // The replicates start from the r the joint fit used and draw around it; they do not move it again (the rounds
     // would pull each draw back to the data's r).
-    for (std::size_t p = 0; p < inputs.size(); ++p) inputs[p].ratio = joint.ratios[p];
+    for (std::size_t p = 0; p < inputs.size(); ++p) {
+      inputs[p].ratio = joint.ratios[p];
+      inputs[p].offset = joint.offsets[p];
+    }
     JointCrfFitOptions band_fit = fit_options;
     band_fit.ratio_rounds = 0;
+    band_fit.pair_offsets = false;  // held at the joint fit's (above)
     band_fit.pair_misfits = false;  // the replicates' misfits are not read
     result.bands[c] = jointBand(inputs, ratioLogSigmas(pairs, options), joint, band_fit, covered, options.band);
     result.timings["joint_band"] += secondsSince(start);
@@ -230,6 +237,9 @@ std::vector<double> fitJointChannel(const std::vector<PairCalibrationResult>& pa
 void JointCalibrationOptions::check() const {
   if (ratio_rounds < 0 || ratio_rounds > 20)
     throw InvalidInput("joint calibration: ratio_rounds must be in 0..20", ErrorSubject::options);
+  if (pair_offsets && ratio_rounds < 1)
+    throw InvalidInput("joint calibration: the pairs' offsets move in the rounds: ratio_rounds must be at least 1",
+                       ErrorSubject::options);
   model.check();
   band.check();
   verdict.check();
@@ -250,6 +260,8 @@ std::string JointCalibrationResult::summary() const {
         << ", covered " << format("%.2f-%.2f", plo, phi) << ", " << pairs[p].pixels_used.at(c) << " pixels";
       if (const auto it = pairs[p].own_curve_inside_band.find(c); it != pairs[p].own_curve_inside_band.end())
         s << format(", its own phi inside the joint band over its range: %.0f %%", 100 * it->second);
+      if (const auto it = pairs[p].offset.find(c); it != pairs[p].offset.end())
+        s << format(", offset %+.4f", it->second);
       if (const auto it = pairs[p].joint_misfit.find(c); it != pairs[p].joint_misfit.end())
         s << format(", misfit %.3gx", it->second);
     }

@@ -10,6 +10,8 @@
 #include <limits>
 #include <sstream>
 
+#include <Eigen/Cholesky>
+
 #include "crf_model_selection.hpp"
 #include "crf_objective.hpp"
 #include "crf_preparation.hpp"
@@ -21,9 +23,19 @@ namespace {
 
 using namespace crf_fit;
 
+// N with an additive irradiance offset c in the pair's blurred shot: each row's N_k φ − c m_k, m_k = N_k 1 its pixel
+// mass, carried by φ's top level, where every model has φ(1) = 1 (and no Jacobian: the offset is a constant).
+Eigen::MatrixXd offsetRows(const Eigen::MatrixXd& n, double offset) {
+  if (offset == 0 || n.cols() == 0) return n;
+  Eigen::MatrixXd out = n;
+  out.col(n.cols() - 1) -= offset * n.rowwise().sum();
+  return out;
+}
+
 // Appends pair p's sums to the stacked moments: Ĥ = r_p H (the level operator of its noise handling applied
-// first, as MomentProblem::system would), N and the counts as they are; no squared masses (the joint fit has no CUE).
-void appendMoments(const MomentProblem& pair, double ratio, MomentProblem& joint) {
+// first, as MomentProblem::system would), N with its offset c_p (offsetRows) and the counts as they are; no squared
+// masses (the joint fit has no CUE).
+void appendMoments(const MomentProblem& pair, double ratio, double offset, MomentProblem& joint) {
   const Moments& m = pair.moments;
   Moments& j = joint.moments;
   const int rows = j.bins + m.bins;
@@ -36,7 +48,7 @@ void appendMoments(const MomentProblem& pair, double ratio, MomentProblem& joint
       into = std::move(out);
     };
     stack(j.h[f], ratio * h);
-    stack(j.n[f], m.n[f]);
+    stack(j.n[f], offsetRows(m.n[f], offset));
     Eigen::VectorXd c(rows);
     if (j.bins > 0) c.head(j.bins) = j.count[f];
     c.tail(m.bins) = m.count[f];
@@ -51,19 +63,43 @@ void appendMoments(const MomentProblem& pair, double ratio, MomentProblem& joint
   joint.omega = std::move(omega);
 }
 
-// The least-squares r of one pair's rows at φ (f on its level grid): min_r Σ_k ((r a_k − b_k) / s_k)².
-double ratioAt(const MomentSystem& sys, const std::vector<double>& f) {
+struct RatioAndOffset {
+  double ratio = 0;   // 0: no r (no row with a rising φ)
+  double offset = 0;
+};
+
+// The least-squares values of the free ones of (r, c) of one pair's rows at φ (f on its level grid), the others held
+// at `held`: min Σ_k ((r a_k + c m_k − b_k) / s_k)², a_k = Ĥ_k φ, b_k = N_k φ, m_k = N_k 1, s_k the row's slope of φ.
+// r = 0: no row with a rising φ.
+RatioAndOffset ratioAt(const MomentSystem& sys, const std::vector<double>& f, RatioAndOffset held, bool free_ratio,
+                       bool free_offset) {
   const int L = sys.levels();
   Eigen::Map<const Eigen::VectorXd> fv(f.data(), L);
-  const Eigen::VectorXd a = sys.h * fv, b = sys.n * fv;
-  double num = 0, den = 0;
+  const Eigen::VectorXd a = sys.h * fv, b = sys.n * fv, m = sys.n.rowwise().sum();
+  Eigen::Matrix2d normal = Eigen::Matrix2d::Zero();
+  Eigen::Vector2d rhs = Eigen::Vector2d::Zero();
   for (int i = 0; i < static_cast<int>(a.size()); ++i) {
     const double slope = (f[sys.v1[i]] - f[sys.v0[i]]) * (L - 1) / double(sys.v1[i] - sys.v0[i]);
     if (!(slope > 1e-9)) continue;
-    num += a[i] * b[i] / (slope * slope);
-    den += a[i] * a[i] / (slope * slope);
+    const Eigen::Vector2d row(a[i], m[i]);
+    normal += row * row.transpose() / (slope * slope);
+    rhs += row * b[i] / (slope * slope);
   }
-  return den > 0 ? num / den : 0.0;
+  if (!(normal(0, 0) > 0) || !(normal(1, 1) > 0)) return {};
+  if (free_ratio && free_offset) {
+    const Eigen::Vector2d x = normal.ldlt().solve(rhs);
+    if (x.allFinite() && x[0] > 0) return {x[0], x[1]};
+  }
+  if (free_ratio) held.ratio = (rhs[0] - held.offset * normal(0, 1)) / normal(0, 0);
+  else if (free_offset) held.offset = (rhs[1] - held.ratio * normal(0, 1)) / normal(1, 1);
+  return held;
+}
+
+// The pair's rows with its offset in N (offsetRows), for its energies.
+MomentSystem withOffset(const MomentSystem& sys, double offset) {
+  MomentSystem out = sys;
+  out.n = offsetRows(sys.n, offset);
+  return out;
 }
 
 }  // namespace
@@ -71,6 +107,9 @@ double ratioAt(const MomentSystem& sys, const std::vector<double>& f) {
 void JointCrfFitOptions::check() const {
   if (ratio_rounds < 0 || ratio_rounds > 20) throw InvalidInput("joint fit: ratio_rounds must be in 0..20");
   if (!(ratio_tolerance > 0)) throw InvalidInput("joint fit: ratio_tolerance must be positive");
+  if (!(offset_tolerance > 0)) throw InvalidInput("joint fit: offset_tolerance must be positive");
+  if (pair_offsets && ratio_rounds < 1)
+    throw InvalidInput("joint fit: pair_offsets move in the ratio rounds: ratio_rounds must be at least 1");
   model.check();
   if (model.experimental.objective != CrfObjective::moments)
     throw InvalidInput("joint fit: only the moments objective can fit several pairs jointly");
@@ -92,6 +131,7 @@ std::string JointCrfFitResult::summary() const {
       << " rounds; at the joint phi " << ratios_at_joint_phi[p] << "), levels " << covered_levels[p].first << "-"
       << covered_levels[p].second << ", " << pixels[p].used
       << " pixels, energy " << energies[p];
+    if (p < offsets.size() && offsets[p] != 0) s << ", offset " << offsets[p];
     if (std::isfinite(misfit(p))) s << " (" << misfit(p) << "x that of a fit of this pair alone at its r)";
   }
   return s.str();
@@ -143,12 +183,13 @@ PairProblems buildPairProblems(const std::vector<JointFitPair>& pairs, const Joi
   return built;
 }
 
-// The pairs' rows stacked at the ratios given, as one moment problem at r = 1.
-MomentProblem stackAt(const PairProblems& built, const std::vector<double>& ratios, int level_bins,
-                      std::pair<int, int> covered) {
+// The pairs' rows stacked at the ratios and offsets given, as one moment problem at r = 1.
+MomentProblem stackAt(const PairProblems& built, const std::vector<double>& ratios, const std::vector<double>& offsets,
+                      int level_bins, std::pair<int, int> covered) {
   MomentProblem joint;
   joint.omega.resize(0);
-  for (std::size_t p = 0; p < built.problems.size(); ++p) appendMoments(built.problems[p], ratios[p], joint);
+  for (std::size_t p = 0; p < built.problems.size(); ++p)
+    appendMoments(built.problems[p], ratios[p], offsets[p], joint);
   joint.level_bins = level_bins;
   joint.level_operator = nullptr;  // applied per pair in appendMoments
   joint.covered_levels = covered;
@@ -183,14 +224,14 @@ void fitStacked(const MomentProblem& joint, const NoiseOperators& noise, const C
 }
 
 // The energy of pair p's rows (`sys`) at a φ fitted to them alone at r (the same model, priors and choice as the
-// joint fit): the reference of the pair's misfit. The pair's problem is stacked alone, so r_p is held as in the
-// joint fit.
-double ownEnergy(const PairProblems& built, std::size_t p, const MomentSystem& sys, double ratio,
+// joint fit): the reference of the pair's misfit. The pair's problem is stacked alone, so r_p (and its offset) is
+// held as in the joint fit. `sys`: the pair's rows with that offset.
+double ownEnergy(const PairProblems& built, std::size_t p, const MomentSystem& sys, double ratio, double offset,
                  const CrfFitOptions& model) {
   const MomentProblem& problem = built.problems[p];
   MomentProblem alone;
   alone.omega.resize(0);
-  appendMoments(problem, ratio, alone);
+  appendMoments(problem, ratio, offset, alone);
   alone.level_bins = problem.level_bins;
   alone.level_operator = nullptr;  // applied in appendMoments
   alone.covered_levels = problem.covered_levels;
@@ -198,6 +239,62 @@ double ownEnergy(const PairProblems& built, std::size_t p, const MomentSystem& s
   fit.covered_levels = problem.covered_levels;
   fitStacked(alone, built.noise[p], model, fit);
   return momentEnergy(sys, onLevelGrid(fit.inverse_crf, sys.levels()), ratio);
+}
+
+// φ at the pairs' ratios and offsets; with ratio_rounds, each pair's r (unless held) and its offset (where free)
+// moved to its own least-squares values at that φ and φ refitted (the pairs' relative exposures from all their data;
+// the common exponent φ^γ, r^γ stays where the starts put it). Fills out.fit, ratios, offsets and the rounds.
+void fitRounds(const PairProblems& built, const std::vector<MomentSystem>& systems,
+               const std::vector<JointFitPair>& pairs, const std::vector<char>& free_offsets,
+               const JointCrfFitOptions& options, std::pair<int, int> covered, JointCrfFitResult& out) {
+  CrfFitResult& result = out.fit;
+  out.ratios = out.start_ratios;
+  out.offsets.clear();
+  for (const JointFitPair& pair : pairs) out.offsets.push_back(pair.offset);
+  for (int round = 0;; ++round) {
+    const MomentProblem joint = stackAt(built, out.ratios, out.offsets, options.model.level_bins, covered);
+    int nonempty = 0;
+    for (int k = 0; k < joint.moments.bins; ++k)
+      nonempty += (joint.moments.count[0][k] + joint.moments.count[1][k]) > 0;
+    result.moment_bins = nonempty;
+    fitStacked(joint, built.noise.front(), options.model, result);
+    out.ratios_at_joint_phi.clear();
+    out.offsets_at_joint_phi.clear();
+    for (std::size_t p = 0; p < systems.size(); ++p) {
+      const MomentSystem& sys = systems[p];
+      const RatioAndOffset at = ratioAt(sys, onLevelGrid(result.inverse_crf, sys.levels()),
+                                        {out.ratios[p], out.offsets[p]}, !options.hold_ratios, free_offsets[p] != 0);
+      out.ratios_at_joint_phi.push_back(at.ratio);
+      out.offsets_at_joint_phi.push_back(at.offset);
+    }
+    out.ratio_rounds = round;
+    double moved = 0, offset_moved = 0;  // r in log r; offsets in full scale
+    for (std::size_t p = 0; p < out.ratios.size(); ++p)
+      if (out.ratios_at_joint_phi[p] > 0) {
+        moved = std::max(moved, std::abs(std::log(out.ratios_at_joint_phi[p] / out.ratios[p])));
+        offset_moved = std::max(offset_moved, std::abs(out.offsets_at_joint_phi[p] - out.offsets[p]));
+      }
+    if (round >= options.ratio_rounds ||
+        !(moved > options.ratio_tolerance || offset_moved > options.offset_tolerance))
+      break;
+    for (std::size_t p = 0; p < out.ratios.size(); ++p)
+      if (out.ratios_at_joint_phi[p] > 0) {
+        out.ratios[p] = out.ratios_at_joint_phi[p];
+        out.offsets[p] = out.offsets_at_joint_phi[p];
+      }
+  }
+  result.ratio = 1.0;
+}
+
+// The stacked rows' energy per unit weight at out's φ, ratios and offsets (what the φ fit minimises, priors aside).
+double totalEnergy(const JointCrfFitResult& out, const std::vector<MomentSystem>& systems) {
+  double energy = 0, weight = 0;
+  for (std::size_t p = 0; p < systems.size(); ++p) {
+    const MomentSystem sys = withOffset(systems[p], out.offsets[p]);
+    energy += sys.weight * momentEnergy(sys, onLevelGrid(out.fit.inverse_crf, sys.levels()), out.ratios[p]);
+    weight += sys.weight;
+  }
+  return weight > 0 ? energy / weight : 0.0;
 }
 
 }  // namespace
@@ -220,37 +317,39 @@ JointCrfFitResult fitInverseCrfJointly(const std::vector<JointFitPair>& pairs, c
   result.covered_levels = covered;
   for (const auto& px : out.pixels) result.pixels.used += px.used, result.pixels.total += px.total;
   for (const JointFitPair& pair : pairs) out.start_ratios.push_back(pair.ratio);
-  out.ratios = out.start_ratios;
   std::vector<MomentSystem> systems;  // each pair's rows without r (Ĥ and N apart): for its r and its energies
   for (const MomentProblem& problem : built.problems) systems.push_back(problem.system(-1));
-  // φ at the ratios; with ratio_rounds, each pair's r moved to its own least-squares r at that φ and φ refitted
-  // (the pairs' relative exposures from all their data; the common exponent φ^γ, r^γ stays where the starts put it).
-  for (int round = 0;; ++round) {
-    const MomentProblem joint = stackAt(built, out.ratios, options.model.level_bins, covered);
-    int nonempty = 0;
-    for (int k = 0; k < joint.moments.bins; ++k)
-      nonempty += (joint.moments.count[0][k] + joint.moments.count[1][k]) > 0;
-    result.moment_bins = nonempty;
-    fitStacked(joint, built.noise.front(), options.model, result);
-    out.ratios_at_joint_phi.clear();
-    for (const MomentSystem& sys : systems)
-      out.ratios_at_joint_phi.push_back(ratioAt(sys, onLevelGrid(result.inverse_crf, sys.levels())));
-    out.ratio_rounds = round;
-    double moved = 0;  // in log r
-    for (std::size_t p = 0; p < out.ratios.size(); ++p)
-      if (out.ratios_at_joint_phi[p] > 0)
-        moved = std::max(moved, std::abs(std::log(out.ratios_at_joint_phi[p] / out.ratios[p])));
-    if (round >= options.ratio_rounds || !(moved > options.ratio_tolerance)) break;
-    for (std::size_t p = 0; p < out.ratios.size(); ++p)
-      if (out.ratios_at_joint_phi[p] > 0) out.ratios[p] = out.ratios_at_joint_phi[p];
+  const JointCrfFitResult base = out;  // the per-pair parts; the rounds fill the rest
+  std::vector<char> free_offsets(pairs.size(), 0);
+  fitRounds(built, systems, pairs, free_offsets, options, covered, out);
+  if (options.pair_offsets) {
+    // One pair's offset at a time, the others' held at theirs (0 unless given): with every offset free the pairs'
+    // common shift φ + δ, c_p + δ (1 − r_p) is held only by φ(0) = 0, and the offsets wander along it.
+    // The lowest total energy wins (docs/RESULTS.md#joint-offsets).
+    out.offset_energies.assign(pairs.size(), -1.0);
+    out.no_offset_energy = totalEnergy(out, systems);
+    double best = out.no_offset_energy;
+    JointCrfFitResult chosen = out;
+    for (std::size_t p = 0; p < pairs.size(); ++p) {
+      JointCrfFitResult trial = base;
+      std::fill(free_offsets.begin(), free_offsets.end(), 0);
+      free_offsets[p] = 1;
+      fitRounds(built, systems, pairs, free_offsets, options, covered, trial);
+      out.offset_energies[p] = totalEnergy(trial, systems);
+      if (out.offset_energies[p] < best) best = out.offset_energies[p], chosen = trial;
+    }
+    chosen.offset_energies = out.offset_energies;
+    chosen.no_offset_energy = out.no_offset_energy;
+    out = std::move(chosen);
   }
-  result.ratio = 1.0;
   for (std::size_t p = 0; p < systems.size(); ++p) {
-    const MomentSystem& sys = systems[p];
-    out.energies.push_back(momentEnergy(sys, onLevelGrid(result.inverse_crf, sys.levels()), out.ratios[p]));
-    out.own_energies.push_back(options.pair_misfits ? ownEnergy(built, p, sys, out.ratios[p], options.model) : -1.0);
+    const MomentSystem sys = withOffset(systems[p], out.offsets[p]);
+    out.energies.push_back(momentEnergy(sys, onLevelGrid(out.fit.inverse_crf, sys.levels()), out.ratios[p]));
+    out.own_energies.push_back(options.pair_misfits
+                                   ? ownEnergy(built, p, sys, out.ratios[p], out.offsets[p], options.model)
+                                   : -1.0);
   }
-  result.timings.total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  out.fit.timings.total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return out;
 }
 

@@ -36,11 +36,13 @@ CalibrationReport jointCalibrationReport(const JointCalibrationResult& joint,
                      {"own_curve_inside_band", s.own_curve_inside_band},
                      {"joint_misfit", s.joint_misfit},
                      {"report", own.toJson()}});
+    if (!s.offset.empty()) pairs.back()["offset"] = s.offset;
   }
   json& extra = report.extra;
   extra["joint"] = {{"pairs", pairs},
                     {"method", "one phi per channel fitted to every pair's moment rows, each pair with its own "
-                               "kernel and its r held at its single-pair value (joint_crf_fit.hpp)"}};
+                               "kernel and its own r, which starts at its single-pair value and moves to the "
+                               "least-squares r of its rows at the joint phi (joint_crf_fit.hpp)"}};
   json fit = json::object();
   for (const auto& [name, f] : joint.fits)
     fit[name] = {{"chosen", f.chosen}, {"choice_reason", f.choice_reason}, {"energy", f.energy},

@@ -41,6 +41,11 @@ struct JointCalibrationOptions {
   // pair. Measured on `bench joint` (docs/RESULTS.md#joint-ratio-rounds): the pairs' r agree, and the joint φ's
   // shape error falls.
   int ratio_rounds = 10;
+  // An additive irradiance offset (a flare or black level in one shot) for the one pair whose offset lowers the joint
+  // energy most, moved in the rounds with its r (JointCrfFitOptions::pair_offsets; needs ratio_rounds ≥ 1), per
+  // channel. Off: found where that pair is at r ≈ 1, placed in the wrong pair in most cases at r ≫ 1
+  // (docs/RESULTS.md#joint-offsets).
+  bool pair_offsets = false;
   CurveBandOptions band;   // the joint band (replicates = 0: none)
   // The band's replicates also draw each pair's r (as the joint fit settled it) from its uncertainty: log r + z·σ,
   // z ~ N(0, 1) (antithetic in each complementary pair of replicates), σ the pair's ratio evidence σ
@@ -58,6 +63,9 @@ struct JointPairSummary {
   std::map<std::string, double> ratio_start;         // per channel: the pair's final single-pair r (or its nominal)
   std::map<std::string, double> ratio;               // per channel: r of the joint fit (G's for every channel)
   std::map<std::string, double> ratio_at_joint_phi;  // per channel: the pair's least-squares r at the joint φ
+  // per channel, with JointCalibrationOptions::pair_offsets: the pair's offset c_p the joint φ was fitted at
+  // (φ(B) = r_p (φ(I) ⊗ K_p) + c_p, a fraction of full-scale irradiance)
+  std::map<std::string, double> offset;
   std::map<std::string, std::pair<double, double>> covered_range;  // per channel: the pair's own covered range
   std::map<std::string, long long> pixels_used;      // per channel, in the joint fit
   std::map<std::string, VerdictLevel> verdict;       // per channel: the pair's own verdict

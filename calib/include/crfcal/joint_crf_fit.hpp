@@ -38,6 +38,7 @@ struct JointFitPair {
   // error bound. Their model, prior and ratio settings are not used (JointCrfFitOptions::model decides those).
   CrfFitOptions options;
   double ratio = 1;        // r_p (> 0): held, or the start of JointCrfFitOptions::ratio_rounds
+  double offset = 0;       // c_p (JointCrfFitOptions::pair_offsets): held, or the start of the rounds
 };
 
 struct JointCrfFitOptions {
@@ -49,7 +50,20 @@ struct JointCrfFitOptions {
   // held at JointFitPair::ratio). The pairs then agree on their relative exposures from all their data; the common
   // exponent (φ^γ with every r_p^γ fits alike) stays where the starting r put it.
   int ratio_rounds = 0;
-  double ratio_tolerance = 1e-3;  // the rounds stop when no pair's r moves by more than this (in log r)
+  double ratio_tolerance = 1e-3;  // the rounds stop when no pair's r moves by more than this (in log r) ...
+  double offset_tolerance = 1e-4; // ... and no pair's offset by more than this (fraction of full scale)
+  // An additive irradiance offset c_p for one pair, moved with r_p in the rounds (requires ratio_rounds > 0):
+  // φ(B) = r_p (φ(I) ⊗ K_p) + c_p, a flare or black level in the blurred shot (an offset c_I in the sharp shot is
+  // c_p = r_p c_I). One pair alone cannot see it (φ + c / (r − 1) fits as well). It enters the rows through
+  // φ(1) = 1: N_k φ − c m_k = (N_k − c m_k e_top) φ. As φ + δ with every c_p + δ (1 − r_p) fits all pairs alike
+  // (held only by φ(0) = 0), the offsets are freed one pair at a time, the others held at JointFitPair::offset, and
+  // the fit with the lowest stacked energy is kept (no offset included): P + 1 joint fits. Identified where that
+  // pair is at r = 1; at r ≫ 1 it trades with the pair's r and is often placed in the wrong pair
+  // (docs/RESULTS.md#joint-offsets).
+  bool pair_offsets = false;
+  // The rounds move only the offsets; every r_p stays at JointFitPair::ratio (the other channels of a pair, fitted at
+  // the r its first channel settled at).
+  bool hold_ratios = false;
   // Each pair also fitted alone, at the r the joint fit gives it, with the same model and priors: the reference of
   // its misfit (JointCrfFitResult::misfit). One more fit per pair; off: no misfit measured.
   bool pair_misfits = false;
@@ -62,6 +76,13 @@ struct JointCrfFitResult {
   std::vector<double> ratios;                        // r_p the joint φ was fitted at (the starts without rounds)
   int ratio_rounds = 0;                              // rounds that moved r (JointCrfFitOptions::ratio_rounds)
   std::vector<double> ratios_at_joint_phi;           // per pair the least-squares r of its rows at the joint φ
+  // per pair the offset c_p the joint φ was fitted at (JointCrfFitOptions::pair_offsets; all 0 without), as a
+  // fraction of full-scale irradiance (φ(1) = 1), and the least-squares offset of its rows at the joint φ
+  std::vector<double> offsets, offsets_at_joint_phi;
+  // pair_offsets: the stacked rows' energy (per unit weight, priors aside) with no offset fitted, and with pair p's
+  // alone; -1: not fitted
+  double no_offset_energy = -1;
+  std::vector<double> offset_energies;
   std::vector<std::pair<int, int>> covered_levels;   // per pair (0.1 % tails dropped, as CrfFitResult's)
   std::vector<CrfPixelAccounting> pixels;            // per pair
   std::vector<double> energies;                      // per pair: its rows' energy at the joint φ (per unit weight)
