@@ -44,6 +44,7 @@ struct CalibrateArgs {
   int emor_terms = PairCalibrationOptions{}.fit.emor_terms;  // EMoR basis curves of the fit
   double ratio = 0;  // 0: from EXIF
   int kernel_size = 35;
+  int max_kernel_size = PairCalibrationOptions{}.max_kernel_size;  // 0: automatic (PairCalibrationOptions)
   std::string kernel_file;
   int threads = 0;
   int rounds = 2;
@@ -208,8 +209,12 @@ double nominalRatio(const CalibrateArgs& args, const io::LoadedPair& pair) {
 }
 
 PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nominal_ratio) {
+  if (args.max_kernel_size != 0 && (args.max_kernel_size % 2 == 0 || args.max_kernel_size < args.kernel_size))
+    throw Error("--max-kernel-size " + std::to_string(args.max_kernel_size) + " must be 0 (automatic) or odd and at "
+                "least --kernel-size (" + std::to_string(args.kernel_size) + ")", ErrorSubject::options);
   PairCalibrationOptions options;
   options.kernel.kernel_size = args.kernel_size;
+  options.max_kernel_size = args.max_kernel_size;
   options.rgb = args.channels == "rgb";
   options.rounds = args.rounds;
   options.band.replicates = args.band_replicates;
@@ -547,8 +552,15 @@ const CommandRegistration registration(
       command.add_option("--ratio", args->ratio,
                          "Exposure ratio r = dt_B/dt_I, 1/1000 .. 1000 (default 0: from EXIF, footnote 4)")
           ->check(exposureRatioOption());
-      command.add_option("--kernel-size", args->kernel_size, "Largest kernel extent, odd (blur + residual shift)")
+      command.add_option("--kernel-size", args->kernel_size,
+                         "Kernel extent, odd (blur + residual shift); an estimate that reaches it is made again 1.5x "
+                         "larger, up to --max-kernel-size")
           ->check(CLI::Range(3, 151) & oddNumber());
+      command.add_option("--max-kernel-size", args->max_kernel_size,
+                         "Largest kernel extent the estimate may grow to, odd, at least --kernel-size (0: a quarter "
+                         "of the sharp shot's shorter side, at most 151; = --kernel-size: no growth)")
+          ->capture_default_str()
+          ->check(CLI::Range(0, 151));
       command.add_option("--kernel", args->kernel_file, "Use this kernel (text matrix or image) instead of estimating")
           ->check(CLI::ExistingFile);
       command.add_option("--rounds", args->rounds, "Kernel <-> phi rounds after the first fit")->check(CLI::Range(0, 10));

@@ -286,6 +286,15 @@ TEST(CalibrateCli, DifferentScenesAreRefused) {
       << r.output;
 }
 
+TEST(CalibrateCli, AMaxKernelSizeBelowTheKernelSizeIsRefusedAndWritesNothing) {
+  test::TempDir dir;
+  const fs::path pairs = test::samples() / "pairs";
+  const auto r = test::run(bin() + " calibrate " + (pairs / "sharp.jpg").string() + " " +
+                           (pairs / "blurred.jpg").string() + " --kernel-size 41 --max-kernel-size 35 -o " +
+                           (dir / "out").string());
+  expectCleanFailure(r, dir / "out", "--max-kernel-size 35 must be 0 (automatic) or odd and at least --kernel-size");
+}
+
 // A grey pair given as aligned, one kernel estimate, no rounds, no effects: the pair checks and the kernel stage only.
 PairCalibrationOptions quickGreyPairOptions() {
   PairCalibrationOptions options;
@@ -346,6 +355,39 @@ TEST(CalibratePairChecks, KernelFailureNamesTheSharpShotsBlackShare) {
     EXPECT_GE(black, 90) << message;  // 99.4 % of the frame is outside the lit window
     EXPECT_NE(message.find("usable: "), std::string::npos) << message;
   }
+}
+
+// A blur wider than the default 35 px limit (Levin's kernel 8 scaled 2.2×): the first estimate
+// reaches the limit and is made again 1.5× larger, so the pair calibrates and says so; with no growth allowed
+// (max_kernel_size = kernel_size) it stops at the limit as before.
+TEST(CalibratePairChecks, AKernelAtItsSizeLimitGrowsUntilTheBlurFits) {
+  cv::Mat kernel;
+  cv::resize(test::levinKernel(8), kernel, cv::Size(), 2.2, 2.2, cv::INTER_LINEAR);  // a 32 x 42 px trajectory
+  kernel /= cv::sum(kernel)[0];
+  cv::Mat blurred;
+  cv::filter2D(test::levinImage(1), blurred, -1, kernel, cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
+  cv::Mat sharp8, blurred8;
+  test::levinImage(1).convertTo(sharp8, CV_8U, 255);
+  blurred.convertTo(blurred8, CV_8U, 255);
+  PairCalibrationOptions options = quickGreyPairOptions();
+  options.fit.nominal_ratio = 1;
+  options.rounds = 2;  // the kernel <-> phi rounds settle r at the grown size
+  const PairCalibrationResult grown = calibratePair(sharp8, blurred8, options);
+  EXPECT_EQ(grown.kernel.kernel.cols, 53);  // 35 → 53 (a quarter of the 255 px side is 63)
+  bool said = false;
+  for (const auto& w : grown.warnings) said |= w.find("the blur is large") != std::string::npos;
+  EXPECT_TRUE(said);
+  EXPECT_NEAR(grown.fits.at("G").ratio, 1, 0.05);
+  options.rounds = 0;
+  options.max_kernel_size = options.kernel.kernel_size;
+  try {
+    calibratePair(sharp8, blurred8, options);
+    FAIL() << "a 42 px blur fitted a 35 px kernel";
+  } catch (const InvalidInput& e) {
+    EXPECT_NE(std::string(e.what()).find("size limit"), std::string::npos) << e.what();
+  }
+  options.max_kernel_size = 34;  // even
+  EXPECT_THROW(options.check(), InvalidInput);
 }
 
 // A night pair in the real regime (samples/pairs/night: St. Louis at night, r = 8, see its PROVENANCE): the short

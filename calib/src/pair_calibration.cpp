@@ -19,6 +19,9 @@ void PairCalibrationOptions::check() const {
   tiles.check();
   fit.check();
   if (rounds < 0 || rounds > 10) throw InvalidInput("rounds must be in 0..10");
+  if (max_kernel_size != 0 &&
+      (max_kernel_size % 2 == 0 || max_kernel_size < kernel.kernel_size || max_kernel_size > 151))
+    throw InvalidInput("max_kernel_size must be 0 (automatic) or odd, at least kernel_size and at most 151");
   if (!(saturated_frame_limit > 0 && saturated_frame_limit <= 1)) throw InvalidInput("saturated_frame_limit in (0,1]");
   if (max_fit_side < 128) throw InvalidInput("max_fit_side must be >= 128");
   if (!(min_blur_radius >= 0)) throw InvalidInput("min_blur_radius must be >= 0");

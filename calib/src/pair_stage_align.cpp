@@ -61,17 +61,6 @@ void warpBlurredShot(PairCalibrationState& state) {
     throw InvalidInput("the pair does not overlap enough after registration", ErrorSubject::pair);
 }
 
-// Pixels usable for the kernel: inside the overlap and unclipped in both shots (the estimator itself keeps only
-// equations whose whole window is usable); the edge-rich tiles among them and the canvas they make.
-void selectKernelTiles(PairCalibrationState& state) {
-  const cv::Mat sharp_bad = state.kernel_admits_sharp_black ? state.sharp_clipped & ~state.sharp_black : state.sharp_clipped;
-  const cv::Mat bad = (state.blurred_g8 >= state.clip_high) | (state.blurred_g8 <= state.clip_low) | sharp_bad;
-  cv::bitwise_and(state.overlap, ~dilateBy(bad, 3), state.usable);
-  state.result.tiles = selectTiles(state.sharp_g8, state.usable, state.options.tiles);
-  state.canvas = makeCanvas(state.sharp_g8, state.blurred_g8, state.usable, state.result.tiles,
-                            state.options.kernel.kernel_size + 2);
-}
-
 // Refuses a pair whose shots do not show one scene. Registration alone does not catch it: ECC on two smoothed,
 // equalised, unrelated photos can exceed its threshold, and the kernel then grows to its size limit trying to
 // explain one image by the other.
@@ -108,6 +97,17 @@ double maskedCorrelation(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask
 }
 
 }  // namespace
+
+// Pixels usable for the kernel: inside the overlap and unclipped in both shots (the estimator itself keeps only
+// equations whose whole window is usable); the edge-rich tiles among them and the canvas they make.
+void selectKernelTiles(PairCalibrationState& state) {
+  const cv::Mat sharp_bad = state.kernel_admits_sharp_black ? state.sharp_clipped & ~state.sharp_black : state.sharp_clipped;
+  const cv::Mat bad = (state.blurred_g8 >= state.clip_high) | (state.blurred_g8 <= state.clip_low) | sharp_bad;
+  cv::bitwise_and(state.overlap, ~dilateBy(bad, 3), state.usable);
+  state.result.tiles = selectTiles(state.sharp_g8, state.usable, state.options.tiles);
+  state.canvas = makeCanvas(state.sharp_g8, state.blurred_g8, state.usable, state.result.tiles,
+                            state.kernel_options.kernel_size + 2);
+}
 
 double sameSceneCorrelation(const cv::Mat& sharp_g, const cv::Mat& blurred_g_in_sharp, const cv::Mat& overlap) {
   // A working copy of at most 512 px (the scene's layout, not its noise or texture), the sharp shot's levels

@@ -33,7 +33,7 @@ void diagnoseResidualEffects(PairCalibrationState& state) {
   ei.corner_radius = 0.5 * std::hypot(state.sharp.cols, state.sharp.rows);
   ei.valid = state.overlap(window);
   ei.fit = fit_options;
-  ei.kernel_options = options.kernel;
+  ei.kernel_options = state.kernel_options;  // grown with the first kernel, if it was
   ei.kernel_options.lambda = options.irradiance_kernel_lambda;  // the tile kernels are irradiance-domain estimates
   ei.weighted_tile_kernels = options.weight_irradiance_kernel;
   try {

@@ -52,7 +52,7 @@ KernelEstimate estimateCanvasKernel(PairCalibrationState& state, const cv::Mat& 
                                     double lambda, const cv::Mat& weights) {
   const Canvas& canvas = state.canvas;
   PairCalibrationResult& result = state.result;
-  KernelEstimationOptions ko = state.options.kernel;
+  KernelEstimationOptions ko = state.kernel_options;
   ko.lambda = lambda;
   ko.progress = [&state](double f, const std::string& stage) { state.report("kernel", f, stage); };
   KernelEstimate k = estimateKernel(s, b, canvas.regions, canvas.usable, ko, weights);
@@ -100,7 +100,55 @@ void refineRegistrationWithKernel(PairCalibrationState& state, const cv::Mat& ke
 KernelEstimate intensityDomainKernel(PairCalibrationState& state, bool per_tile) {
   const Canvas& canvas = state.canvas;
   return estimateCanvasKernel(state, histogramMatch(canvas.sharp_denoised, canvas.blurred, canvas.usable),
-                              canvas.blurred, per_tile, state.options.kernel.lambda, cv::Mat());
+                              canvas.blurred, per_tile, state.kernel_options.lambda, cv::Mat());
+}
+
+// The largest kernel the first estimate may grow to (PairCalibrationOptions::max_kernel_size; automatic: a quarter of
+// the sharp shot's shorter side, odd, at most 151, never below the size it starts at).
+int largestKernelSize(const PairCalibrationState& state) {
+  const int start = state.options.kernel.kernel_size;
+  if (state.options.max_kernel_size > 0) return state.options.max_kernel_size;
+  int quarter = std::min(state.sharp.cols, state.sharp.rows) / 4;
+  if (quarter % 2 == 0) --quarter;
+  return std::max(start, std::min(151, quarter));
+}
+
+// intensityDomainKernel, made again 1.5× larger (odd) while it reaches its size limit and may grow
+// (largestKernelSize); the size it ends at stays in state.kernel_options for every later estimate and the canvas.
+KernelEstimate intensityDomainKernelGrowing(PairCalibrationState& state) {
+  const int largest = largestKernelSize(state);
+  const int start = state.kernel_options.kernel_size;
+  const bool throws = state.kernel_options.throw_on_size_limit;
+  while (true) {
+    KernelEstimationOptions& ko = state.kernel_options;
+    const bool can_grow = ko.kernel_size < largest;
+    ko.throw_on_size_limit = throws && !can_grow;  // the last size tried fails as it always did
+    KernelEstimate k;
+    try {
+      k = intensityDomainKernel(state, false);
+    } catch (...) {
+      ko.throw_on_size_limit = throws;
+      throw;
+    }
+    ko.throw_on_size_limit = throws;
+    if (!k.hit_size_limit || !can_grow) {
+      if (ko.kernel_size > start) {
+        char buffer[200];
+        std::snprintf(buffer, sizeof buffer,
+                      "the blur is large: the kernel reached its %d px limit and was estimated at %dx%d px",
+                      start, ko.kernel_size, ko.kernel_size);
+        state.result.warnings.push_back(buffer);
+      }
+      return k;
+    }
+    const int grown = std::min(largest, (ko.kernel_size * 3 / 2) | 1);
+    char detail[160];
+    std::snprintf(detail, sizeof detail, "at its %d px limit (%.0f %% of its mass on the border): estimated again at %d px",
+                  ko.kernel_size, 100 * k.border_mass, grown);
+    state.report("kernel", 0, detail);
+    ko.kernel_size = grown;
+    selectKernelTiles(state);  // the canvas's margin follows the kernel's size
+  }
 }
 
 }  // namespace
@@ -172,7 +220,7 @@ void estimateFirstKernel(PairCalibrationState& state) {
     refineRegistrationWithKernel(state, state.kernel);
   } else {
     state.report("kernel", 0);
-    result.kernel = intensityDomainKernel(state, false);
+    result.kernel = intensityDomainKernelGrowing(state);
     state.kernel = result.kernel.kernel;
     if (options.register_pair && options.refine_registration) {
       refineRegistrationWithKernel(state, state.kernel);

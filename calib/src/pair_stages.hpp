@@ -41,8 +41,11 @@ Canvas makeCanvas(const cv::Mat& sharp8, const cv::Mat& blurred8, const cv::Mat&
                   int margin);
 
 struct PairCalibrationState {
-  explicit PairCalibrationState(const PairCalibrationOptions& o) : options(o) {}
+  explicit PairCalibrationState(const PairCalibrationOptions& o) : options(o), kernel_options(o.kernel) {}
   const PairCalibrationOptions& options;
+  // options.kernel, its kernel_size grown when the first estimate reached it (PairCalibrationOptions::
+  // max_kernel_size): what every later kernel estimate and the canvas's margin use.
+  KernelEstimationOptions kernel_options;
   PairCalibrationResult result;  // filled stage by stage; returned at the end
 
   // Forwards to options.progress (if any).
@@ -122,6 +125,9 @@ void turnSharpShot(PairCalibrationState& state, const cv::Mat& sharp_in);
 void registerShots(PairCalibrationState& state);
 // The blurred shot warped into the sharp frame and the overlap, then the usable pixels, tiles and canvas.
 void alignToRegistration(PairCalibrationState& state);
+// The kernel's usable pixels (the overlap, unclipped in both shots), its edge-rich tiles and their canvas, whose
+// margin is the kernel's size (state.kernel_options).
+void selectKernelTiles(PairCalibrationState& state);
 // Normalised cross-correlation of the two shots' coarse gradient magnitudes over the overlap, in [-1, 1]: near 1
 // for one scene (whatever the exposure, tone curve and blur), near 0 for two unrelated scenes.
 double sameSceneCorrelation(const cv::Mat& sharp_g, const cv::Mat& blurred_g_in_sharp, const cv::Mat& overlap);

@@ -31,6 +31,11 @@ namespace crfcal {
 struct PairCalibrationOptions {
   RegistrationOptions registration;
   KernelEstimationOptions kernel;
+  // A first kernel estimate that reaches its size limit (kernel.kernel_size) is made again 1.5× larger (odd), until
+  // it fits or reaches this size: a long handheld exposure can blur by more than the default 35 px, and the estimate
+  // itself shows when it does (its mass on the border). 0: automatic, a quarter of the sharp shot's shorter side, at
+  // most 151. Equal to kernel.kernel_size: no growth.
+  int max_kernel_size = 0;
   TileSelectionOptions tiles;
   CrfFitOptions fit;                 // nominal_ratio = the EXIF ratio (footnote 4) or --ratio
   bool register_pair = true;         // false: the pair is already aligned
