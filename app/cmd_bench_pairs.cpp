@@ -64,6 +64,7 @@ struct PairsArgs {
   std::string chroma_model = "check";  // as calibrate --chroma-model
   int max_side = 800;
   int kernel_size = 35;
+  int max_kernel_size = PairCalibrationOptions{}.max_kernel_size;  // 0: automatic (PairCalibrationOptions)
   std::string channels = "g";
   double ratio_prior = PairCalibrationOptions{}.fit.ratio_prior_sigma;
   double censored_weight = PairCalibrationOptions{}.fit.censored_weight;  // B's clipped pixels, censored
@@ -201,6 +202,7 @@ cv::Mat readPhoto(const PairsArgs& args, const std::string& image_path) {
 PairCalibrationOptions calibrationOptions(const PairsArgs& args, const io::LoadedPair& loaded) {
   PairCalibrationOptions options;
   options.kernel.kernel_size = args.kernel_size;
+  options.max_kernel_size = args.max_kernel_size;
   options.rgb = args.channels == "rgb";
   options.fit.nominal_ratio = loaded.exif_ratio->ratio();
   // As calibrate: the sharp shot's stored chroma sampling (the chroma check, the R and B verdicts).
@@ -593,6 +595,7 @@ struct PairsRun {
 };
 
 int runPairs(const PairsArgs& args) {
+  checkKernelSizes(args.kernel_size, args.max_kernel_size);
   const std::vector<std::string> images = pairImages(args);
   const std::vector<std::string> crfs = pairCurves(args);
   const bool any_real = std::any_of(args.ratios.begin(), args.ratios.end(), [&](double r) { return realRegime(args, r); });
@@ -660,9 +663,16 @@ const BenchRegistration registration(
           ->capture_default_str()
           ->check(chromaModelNames());
       command.add_option("--max-side", args->max_side, "Downscale the photo to this longest side")->capture_default_str();
-      command.add_option("--kernel-size", args->kernel_size, "Kernel size limit for estimation (odd)")
+      command.add_option("--kernel-size", args->kernel_size,
+                         "Kernel size for estimation (odd); an estimate that reaches it grows 1.5x, up to "
+                         "--max-kernel-size")
           ->capture_default_str()
           ->check(CLI::Range(3, 151) & oddNumber());
+      command.add_option("--max-kernel-size", args->max_kernel_size,
+                         "Largest size the kernel may grow to, odd, at least --kernel-size (0: a quarter of the "
+                         "sharp shot's shorter side, at most 151; = --kernel-size: no growth)")
+          ->capture_default_str()
+          ->check(CLI::Range(0, 151));
       command.add_option("--channels", args->channels, "g or rgb")->capture_default_str()->check(CLI::IsMember({"g", "rgb"}));
       command.add_option("--noise-handling", args->noise_handling, "The sharp shot's noise in the fit: jensen, none, debias, denoise")
           ->capture_default_str()

@@ -209,9 +209,7 @@ double nominalRatio(const CalibrateArgs& args, const io::LoadedPair& pair) {
 }
 
 PairCalibrationOptions calibrationOptions(const CalibrateArgs& args, double nominal_ratio) {
-  if (args.max_kernel_size != 0 && (args.max_kernel_size % 2 == 0 || args.max_kernel_size < args.kernel_size))
-    throw Error("--max-kernel-size " + std::to_string(args.max_kernel_size) + " must be 0 (automatic) or odd and at "
-                "least --kernel-size (" + std::to_string(args.kernel_size) + ")", ErrorSubject::options);
+  checkKernelSizes(args.kernel_size, args.max_kernel_size);
   PairCalibrationOptions options;
   options.kernel.kernel_size = args.kernel_size;
   options.max_kernel_size = args.max_kernel_size;

@@ -7,6 +7,7 @@
 #include <CLI/CLI.hpp>
 
 #include "crfcal/crf_fitter.hpp"
+#include "crfcal/error.hpp"
 #include "crfcal/pair_calibration.hpp"
 
 namespace crfcal::app {
@@ -32,6 +33,14 @@ inline CLI::Validator exposureRatioOption(bool zero_means_exif = true) {
                std::string(zero_means_exif ? " (or 0: from EXIF)" : "");
       },
       zero_means_exif ? "0|0.001..1000" : "0.001..1000");
+}
+
+// --max-kernel-size against --kernel-size (PairCalibrationOptions::max_kernel_size): 0 (automatic), or odd and at
+// least the size the estimate starts at. Throws Error (subject: options) naming both flags.
+inline void checkKernelSizes(int kernel_size, int max_kernel_size) {
+  if (max_kernel_size != 0 && (max_kernel_size % 2 == 0 || max_kernel_size < kernel_size))
+    throw Error("--max-kernel-size " + std::to_string(max_kernel_size) + " must be 0 (automatic) or odd and at "
+                "least --kernel-size (" + std::to_string(kernel_size) + ")", ErrorSubject::options);
 }
 
 // --model: the model of φ by its name (toString(CrfModelChoice)).

@@ -1,4 +1,5 @@
 // The crfcal command line: --help/--version, simulate round trip, one-line errors and no partial output.
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -6,8 +7,10 @@
 #include <nlohmann/json.hpp>
 
 #include "crfcal/blur_model.hpp"
+#include "crfcal/error.hpp"
 #include "crfcal/io/image_io.hpp"
 #include "crfcal/io/kernel_io.hpp"
+#include "crfcal/kernel.hpp"
 #include "crfcal/response_curve.hpp"
 #include "crfcal/response_model.hpp"
 #include "test_support.hpp"
@@ -115,6 +118,28 @@ TEST(Cli, SimulatedBlurredImageFollowsTheIrradianceModel) {
   double intensity_error = 0;
   cv::minMaxLoc(cv::abs(intensityBlur(sharp, kernel) - blurred), nullptr, &intensity_error);
   EXPECT_GT(intensity_error, 0.05);
+}
+
+// levin:N@S: Levin's kernel N scaled by S (a longer exposure's shake), odd-sided, normalised, its trajectory S× as
+// long (the spread of its mass about its centroid); a scale outside 0.25 … 8 is refused naming the spec.
+TEST(KernelSpec, ScaledLevinKernelKeepsItsShapeAtSTimesTheSize) {
+  const cv::Mat base = io::kernelFromSpec("levin:8");
+  const cv::Mat scaled = io::kernelFromSpec("levin:8@2.2");
+  EXPECT_EQ(scaled.rows % 2, 1);
+  EXPECT_EQ(scaled.cols % 2, 1);
+  EXPECT_NEAR(scaled.cols, 2.2 * base.cols, 1.5);
+  EXPECT_NEAR(cv::sum(scaled)[0], 1.0, 1e-9);
+  const auto spread = [](const cv::Mat& k) {
+    const cv::Point2d c = kernelCentroid(k);
+    double s = 0;
+    for (int y = 0; y < k.rows; ++y)
+      for (int x = 0; x < k.cols; ++x) s += k.at<double>(y, x) * ((x - c.x) * (x - c.x) + (y - c.y) * (y - c.y));
+    return std::sqrt(s);
+  };
+  EXPECT_NEAR(spread(scaled) / spread(base), 2.2, 0.15);
+  EXPECT_THROW(io::kernelFromSpec("levin:8@9"), Error);
+  EXPECT_THROW(io::kernelFromSpec("levin:8@x"), Error);
+  EXPECT_THROW(io::kernelFromSpec("levin:9@2"), Error);
 }
 
 TEST(Cli, BadInputGivesOneLineAndNoOutput) {

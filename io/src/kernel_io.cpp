@@ -90,15 +90,27 @@ cv::Mat readKernel(const fs::path& path) {
 
 cv::Mat kernelFromSpec(const std::string& spec) {
   if (spec.rfind("levin:", 0) == 0) {
+    // levin:N, or levin:N@S: Levin's kernel N scaled by S (a longer exposure's larger shake, same trajectory)
+    const std::size_t at = spec.find('@');
     int index = 0;
+    double scale = 1;
     try {
-      index = std::stoi(spec.substr(6));
+      index = std::stoi(spec.substr(6, at == std::string::npos ? std::string::npos : at - 6));
+      if (at != std::string::npos) scale = std::stod(spec.substr(at + 1));
     } catch (const std::exception&) {
+      index = 0;
     }
     if (index < 1 || index > 8) throw Error("kernel spec '" + spec + "': Levin kernels are levin:1 … levin:8");
+    if (!(scale >= 0.25 && scale <= 8)) throw Error("kernel spec '" + spec + "': the scale after @ must be 0.25 … 8");
     char name[32];
     std::snprintf(name, sizeof name, "kernel%02d.txt", index);
-    return readKernel(samplesDirectory() / "levin09" / name);
+    const cv::Mat kernel = readKernel(samplesDirectory() / "levin09" / name);
+    if (scale == 1) return kernel;
+    cv::Mat scaled;
+    cv::resize(kernel, scaled, cv::Size(), scale, scale, scale < 1 ? cv::INTER_AREA : cv::INTER_LINEAR);
+    // odd sides, as every kernel here has (a centre pixel)
+    cv::copyMakeBorder(scaled, scaled, 0, 1 - scaled.rows % 2, 0, 1 - scaled.cols % 2, cv::BORDER_CONSTANT, 0.0);
+    return normalizeKernel(cv::max(scaled, 0.0));
   }
   if (spec.rfind("box:", 0) == 0) {
     int length = 0;
