@@ -447,8 +447,10 @@ TEST(CalibrateCli, KernelHitsSizeLimit) {
   writeShot(dir / "a.png", sharp * 255, 100, 0.01);
   writeShot(dir / "b.png", blurred * 255, 100, 0.01);
   const auto r = test::run(bin() + " calibrate " + (dir / "a.png").string() + " " + (dir / "b.png").string() +
-                           " --blurred second --no-register --kernel-size 7 -o " + (dir / "out").string());
-  expectCleanFailure(r, dir / "out", "--kernel-size");
+                           " --blurred second --no-register --kernel-size 7 --max-kernel-size 7 -o " +
+                           (dir / "out").string());
+  expectCleanFailure(r, dir / "out", "size limit (7x7 px");
+  EXPECT_NE(r.output.find("try a larger --max-kernel-size"), std::string::npos) << r.output;
 }
 
 

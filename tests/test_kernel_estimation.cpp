@@ -174,7 +174,7 @@ TEST(KernelEstimation, SizeLimitIsReportedWithAHint) {
     estimateKernel(sharp, blurred, options);
     FAIL() << "expected InvalidInput";
   } catch (const InvalidInput& e) {
-    EXPECT_NE(std::string(e.what()).find("--kernel-size"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("--max-kernel-size"), std::string::npos) << e.what();
   }
 }
 

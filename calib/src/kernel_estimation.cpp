@@ -456,7 +456,7 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
     char buffer[300];
     std::snprintf(buffer, sizeof buffer,
                   "the blur kernel reaches its size limit (%dx%d px, %.0f%% of its mass on the border): the blur or "
-                  "the residual misregistration is larger; try a larger --kernel-size",
+                  "the residual misregistration is larger; try a larger --max-kernel-size",
                   K.cols, K.rows, 100 * result.border_mass);
     throw InvalidInput(buffer);
   }

@@ -39,7 +39,7 @@ struct KernelEstimationOptions {
   int reweight_rounds = 2;       // re-weighted L1 rounds per level (0: plain L1)
   double prune_threshold = 0.05; // final entries below this fraction of the peak are set to 0
   double border_limit = 0.04;    // mass fraction in the outer ring of the window: the kernel hit its size limit
-  bool throw_on_size_limit = true;  // throw InvalidInput (suggesting --kernel-size) when the limit is hit
+  bool throw_on_size_limit = true;  // throw InvalidInput (suggesting --max-kernel-size) when the limit is hit
   double texture_factor = 2.0;   // equations kept where the ∂I window energy > this × the noise-only energy
   int max_equations = 16000;     // per gradient direction and level (uniform deterministic subsample above)
   double smoothness = 0.05;      // μ of μ‖∇k‖² (Tikhonov), relative to the mean diagonal of the Gram matrix
