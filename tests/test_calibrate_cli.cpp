@@ -378,6 +378,12 @@ TEST(CalibratePairChecks, AKernelAtItsSizeLimitGrowsUntilTheBlurFits) {
   for (const auto& w : grown.warnings) said |= w.find("the blur is large") != std::string::npos;
   EXPECT_TRUE(said);
   EXPECT_NEAR(grown.fits.at("G").ratio, 1, 0.05);
+  EXPECT_EQ(grown.kernel_grown_to, 53);
+  const ChannelVerdict& verdict = grown.verdicts.at("G");
+  EXPECT_NE(verdict.level, VerdictLevel::ok) << verdict.summary();  // at most weak: measured, RESULTS#kernel-growth
+  bool named = false;
+  for (const auto& reason : verdict.reasons) named |= reason.find("outgrew the kernel's 35 px limit") != std::string::npos;
+  EXPECT_TRUE(named) << verdict.summary();
   options.rounds = 0;
   options.max_kernel_size = options.kernel.kernel_size;
   try {

@@ -147,6 +147,11 @@ void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
            format("the kernel was estimated with the sharp shot's black areas admitted (black over %.0f %% of the "
                   "overlap; without them the estimate failed): an edge into black loses its dark side",
                   100 * e.kernel_sharp_black_admitted));
+  if (e.kernel_grown_to > 0)
+    j.find(VerdictLevel::weak,
+           format("the blur outgrew the kernel's %.0f px limit and was estimated at %.0f px: r and phi rest on a "
+                  "kernel at the estimator's reach (on such blurs most pairs' r came out more than 5 %% off)",
+                  e.kernel_size_start, e.kernel_grown_to));
   if (e.chroma_check_replaced)
     j.notes.push_back(format("fitted where the sharp shot's subsampled chroma is flat: the pointwise fit differed "
                              "from this one in shape by %.4f (> %.2g) and lay below it (scale %.3f), the bias the "

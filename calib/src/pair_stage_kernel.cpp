@@ -133,6 +133,7 @@ KernelEstimate intensityDomainKernelGrowing(PairCalibrationState& state) {
     ko.throw_on_size_limit = throws;
     if (!k.hit_size_limit || !can_grow) {
       if (ko.kernel_size > start) {
+        state.result.kernel_grown_to = ko.kernel_size;
         char buffer[200];
         std::snprintf(buffer, sizeof buffer,
                       "the blur is large: the kernel reached its %d px limit and was estimated at %dx%d px",

@@ -177,6 +177,8 @@ void computeVerdict(PairCalibrationState& state) {
       e.shape_band_sigma = medianShapeSigma(band->second);
     e.inverse_crf = fit.inverse_crf;
     e.kernel_sharp_black_admitted = result.kernel_sharp_black_admitted;
+    e.kernel_grown_to = result.kernel_grown_to;
+    e.kernel_size_start = state.options.kernel.kernel_size;
     const auto& modelled = result.chroma_model_channels;
     if (name != "G" && options.sharp_stored_chroma.subsampled() &&
         std::find(modelled.begin(), modelled.end(), name) == modelled.end())

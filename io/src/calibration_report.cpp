@@ -118,6 +118,8 @@ json kernelJson(const PairCalibrationResult& result) {
   kernel["blur_rms_radius_px"] = result.blur_radius;
   // the sharp shot's black share when the estimate needed its black areas admitted (0: it did not)
   kernel["sharp_black_admitted"] = result.kernel_sharp_black_admitted;
+  // the size the estimate grew to when it reached its limit (0: it did not)
+  kernel["grown_to"] = result.kernel_grown_to;
   kernel["equations"] = result.kernel.equations;
   kernel["border_mass"] = result.kernel.border_mass;
   kernel["relative_residual"] = result.kernel.relative_residual;

@@ -137,6 +137,10 @@ struct ChannelEvidence {
   std::string chroma_check_not_replaced;
   // PairCalibrationResult::kernel_sharp_black_admitted: > 0 → weak (the kernel rests on edges into black).
   double kernel_sharp_black_admitted = 0;
+  // PairCalibrationResult::kernel_grown_to: > 0 → weak (a blur beyond the default limit, at the estimator's reach);
+  // kernel_size_start: the limit it outgrew.
+  int kernel_grown_to = 0;
+  int kernel_size_start = 0;
 };
 
 struct ChannelVerdict {

@@ -160,6 +160,10 @@ struct PairCalibrationResult {
   // overlap. The verdict is then at
   // most weak (an edge into black loses its dark side: measured on night pairs, docs/RESULTS.md#sharp-black-admitted).
   double kernel_sharp_black_admitted = 0;
+  // > 0: the first kernel estimate reached its size limit (options.kernel.kernel_size) and was made again larger
+  // (PairCalibrationOptions::max_kernel_size); the size it was estimated at. The verdict is then at most weak
+  // (measured on large real-regime blurs: most such pairs' r off by more than 5 %, docs/RESULTS.md#kernel-growth).
+  int kernel_grown_to = 0;
   bool ratio_fixed_by_small_blur = false;  // r held at EXIF/--ratio (fix_ratio_when_blur_is_small)
   double ratio_images_small_blur = 0;      // then: the r of the first, free fit that disagreed
   // r from the images and the nominal ratio combined (options.ratio_evidence); ratio_from_evidence: the fits were
