@@ -382,7 +382,8 @@ TEST(CalibratePairChecks, AKernelAtItsSizeLimitGrowsUntilTheBlurFits) {
   const ChannelVerdict& verdict = grown.verdicts.at("G");
   EXPECT_NE(verdict.level, VerdictLevel::ok) << verdict.summary();  // at most weak: measured, RESULTS#kernel-growth
   bool named = false;
-  for (const auto& reason : verdict.reasons) named |= reason.find("outgrew the kernel's 35 px limit") != std::string::npos;
+  for (const auto& reason : verdict.reasons)
+    named |= reason.find("outgrew the kernel's 35 px limit") != std::string::npos;
   EXPECT_TRUE(named) << verdict.summary();
   options.rounds = 0;
   options.max_kernel_size = options.kernel.kernel_size;

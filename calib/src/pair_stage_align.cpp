@@ -101,7 +101,8 @@ double maskedCorrelation(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask
 // Pixels usable for the kernel: inside the overlap and unclipped in both shots (the estimator itself keeps only
 // equations whose whole window is usable); the edge-rich tiles among them and the canvas they make.
 void selectKernelTiles(PairCalibrationState& state) {
-  const cv::Mat sharp_bad = state.kernel_admits_sharp_black ? state.sharp_clipped & ~state.sharp_black : state.sharp_clipped;
+  const cv::Mat sharp_bad =
+      state.kernel_admits_sharp_black ? state.sharp_clipped & ~state.sharp_black : state.sharp_clipped;
   const cv::Mat bad = (state.blurred_g8 >= state.clip_high) | (state.blurred_g8 <= state.clip_low) | sharp_bad;
   cv::bitwise_and(state.overlap, ~dilateBy(bad, 3), state.usable);
   state.result.tiles = selectTiles(state.sharp_g8, state.usable, state.options.tiles);

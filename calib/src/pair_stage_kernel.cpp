@@ -48,6 +48,14 @@ cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::M
   return out;
 }
 
+int largestKernelSize(const PairCalibrationState& state) {
+  const int start = state.options.kernel.kernel_size;
+  if (state.options.max_kernel_size > 0) return state.options.max_kernel_size;
+  int quarter = std::min(state.sharp.cols, state.sharp.rows) / 4;
+  if (quarter % 2 == 0) --quarter;
+  return std::max(start, std::min(kAutomaticLargestKernel, quarter));
+}
+
 KernelEstimate estimateCanvasKernel(PairCalibrationState& state, const cv::Mat& s, const cv::Mat& b, bool per_tile,
                                     double lambda, const cv::Mat& weights) {
   const Canvas& canvas = state.canvas;
@@ -103,21 +111,13 @@ KernelEstimate intensityDomainKernel(PairCalibrationState& state, bool per_tile)
                               canvas.blurred, per_tile, state.kernel_options.lambda, cv::Mat());
 }
 
-// The largest kernel the first estimate may grow to (PairCalibrationOptions::max_kernel_size; automatic: a quarter of
-// the sharp shot's shorter side, odd, at most 151, never below the size it starts at).
-int largestKernelSize(const PairCalibrationState& state) {
-  const int start = state.options.kernel.kernel_size;
-  if (state.options.max_kernel_size > 0) return state.options.max_kernel_size;
-  int quarter = std::min(state.sharp.cols, state.sharp.rows) / 4;
-  if (quarter % 2 == 0) --quarter;
-  return std::max(start, std::min(151, quarter));
-}
 
 // intensityDomainKernel, made again 1.5× larger (odd) while it reaches its size limit and may grow
-// (largestKernelSize); the size it ends at stays in state.kernel_options for every later estimate and the canvas.
+// (state.kernel_may_grow, up to largestKernelSize); the size it ends at stays in state.kernel_options for every later
+// estimate and the canvas.
 KernelEstimate intensityDomainKernelGrowing(PairCalibrationState& state) {
-  const int largest = largestKernelSize(state);
-  const int start = state.kernel_options.kernel_size;
+  const int largest = state.kernel_may_grow ? largestKernelSize(state) : state.kernel_options.kernel_size;
+  const int start = state.options.kernel.kernel_size;  // the limit given (a retry may start from a grown one)
   const bool throws = state.kernel_options.throw_on_size_limit;
   while (true) {
     KernelEstimationOptions& ko = state.kernel_options;
@@ -132,7 +132,7 @@ KernelEstimate intensityDomainKernelGrowing(PairCalibrationState& state) {
     }
     ko.throw_on_size_limit = throws;
     if (!k.hit_size_limit || !can_grow) {
-      if (ko.kernel_size > start) {
+      if (ko.kernel_size > start && state.result.kernel_grown_to != ko.kernel_size) {
         state.result.kernel_grown_to = ko.kernel_size;
         char buffer[200];
         std::snprintf(buffer, sizeof buffer,
@@ -144,8 +144,9 @@ KernelEstimate intensityDomainKernelGrowing(PairCalibrationState& state) {
     }
     const int grown = std::min(largest, (ko.kernel_size * 3 / 2) | 1);
     char detail[160];
-    std::snprintf(detail, sizeof detail, "at its %d px limit (%.0f %% of its mass on the border): estimated again at %d px",
-                  ko.kernel_size, 100 * k.border_mass, grown);
+    std::snprintf(detail, sizeof detail,
+                  "at its %d px limit (%.0f %% of its mass on the border): estimated again at %d px", ko.kernel_size,
+                  100 * k.border_mass, grown);
     state.report("kernel", 0, detail);
     ko.kernel_size = grown;
     selectKernelTiles(state);  // the canvas's margin follows the kernel's size
@@ -173,36 +174,62 @@ std::string usablePixelsNote(const PairCalibrationState& state) {
   return buffer;
 }
 
+namespace {
+
+// The black share of the overlap recorded, and the warning, once a kernel was estimated with it admitted.
+void recordSharpBlackAdmitted(PairCalibrationState& state, int black) {
+  state.result.kernel_sharp_black_admitted = double(black) / std::max(1, cv::countNonZero(state.overlap));
+  char buffer[300];
+  std::snprintf(buffer, sizeof buffer,
+                "the kernel estimate failed without the sharp shot's black areas (black over %.0f %% of the "
+                "overlap): it was estimated with them admitted (an edge into black loses its dark side); the "
+                "verdict is at most weak. A brighter short exposure (a smaller exposure ratio) would avoid this",
+                100 * state.result.kernel_sharp_black_admitted);
+  state.result.warnings.push_back(buffer);
+}
+
+// estimateFirstKernel once more; false when it fails too.
+bool retried(PairCalibrationState& state) {
+  try {
+    estimateFirstKernel(state);
+    return true;
+  } catch (const InvalidInput&) {
+    return false;
+  }
+}
+
+}  // namespace
+
 void estimateFirstKernelAdmittingBlack(PairCalibrationState& state) {
-  std::string note;
+  state.kernel_may_grow = false;
   try {
     estimateFirstKernel(state);
     return;
   } catch (const InvalidInput& e) {
-    note = usablePixelsNote(state);  // of the first attempt, for the message if the retry fails too
+    const std::string note = usablePixelsNote(state);  // of the first attempt, for the message if the retries fail
     cv::Mat black_in_overlap;
     cv::bitwise_and(state.sharp_black, state.overlap, black_in_overlap);
     const int black = cv::countNonZero(black_in_overlap);
-    // Only a pair whose two shots show one scene (a doubtful one keeps its two-scenes message, pair_calibration.cpp).
-    if (state.kernel_admits_sharp_black || black == 0 ||
-        state.same_scene_correlation < doubtful_same_scene_correlation)
-      throw InvalidInput(e.reason() + " (" + note + ")", e.subject());
-    state.kernel_admits_sharp_black = true;
-    state.report("kernel", 0, "failed without the sharp shot's black areas: estimated again with them");
-    try {
+    // First the sharp shot's black admitted at the size given (a night frame: no usable windows without it), on a
+    // pair whose two shots show one scene (a doubtful one keeps its two-scenes message, pair_calibration.cpp) ...
+    if (!state.kernel_admits_sharp_black && black > 0 &&
+        state.same_scene_correlation >= doubtful_same_scene_correlation) {
+      state.kernel_admits_sharp_black = true;
+      state.report("kernel", 0, "failed without the sharp shot's black areas: estimated again with them");
       alignToRegistration(state);
-      estimateFirstKernel(state);
-    } catch (const InvalidInput&) {
-      throw InvalidInput(e.reason() + " (" + note + ")", e.subject());
+      if (retried(state)) return recordSharpBlackAdmitted(state, black);
     }
-    state.result.kernel_sharp_black_admitted = double(black) / std::max(1, cv::countNonZero(state.overlap));
-    char buffer[300];
-    std::snprintf(buffer, sizeof buffer,
-                  "the kernel estimate failed without the sharp shot's black areas (black over %.0f %% of the "
-                  "overlap): it was estimated with them admitted (an edge into black loses its dark side); the "
-                  "verdict is at most weak. A brighter short exposure (a smaller exposure ratio) would avoid this",
-                  100 * state.result.kernel_sharp_black_admitted);
-    state.result.warnings.push_back(buffer);
+    // ... then a larger kernel (a blur beyond the window: the estimate at its size limit; an estimate without edges
+    // fails again at once). Not gated by the same-scene correlation: a large blur lowers it (0.34 for a 42 px blur
+    // of a Levin image), and a kernel that fits at no size still ends in the two-scenes message.
+    if (largestKernelSize(state) > state.kernel_options.kernel_size) {
+      state.kernel_may_grow = true;
+      if (retried(state)) {
+        if (state.kernel_admits_sharp_black) recordSharpBlackAdmitted(state, black);
+        return;
+      }
+    }
+    throw InvalidInput(e.reason() + " (" + note + ")", e.subject());
   }
 }
 

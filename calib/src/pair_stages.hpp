@@ -69,6 +69,9 @@ struct PairCalibrationState {
   // The kernel's usable pixels keep I's black (the retry of a failed kernel estimate:
   // estimateFirstKernelAdmittingBlack).
   bool kernel_admits_sharp_black = false;
+  // The first kernel may grow past options.kernel.kernel_size (estimateFirstKernelAdmittingBlack: after the retry with
+  // the sharp shot's black admitted).
+  bool kernel_may_grow = false;
 
   // align: everything that depends on the alignment (re-done after the kernel-aware refinement)
   cv::Mat blurred_g8;  // B's G plane resampled into the sharp frame
@@ -146,16 +149,24 @@ constexpr double doubtful_same_scene_correlation = 0.5;
 cv::Mat histogramMatch(const cv::Mat& source, const cv::Mat& target, const cv::Mat& mask);
 // The first kernel (or the given one) with the kernel-aware registration refinement; sets state.kernel.
 void estimateFirstKernel(PairCalibrationState& state);
-// estimateFirstKernel; when it fails (no usable windows, or the kernel at its size limit) and the sharp shot has black
-// areas, made again with them admitted to the kernel's usable pixels (the estimate works on gradients: a black region is flat and dropped by the estimator's texture
-// test, an edge into black loses only the black threshold of its step), and result.kernel_sharp_black_admitted set.
-// A pair that runs without them is unchanged. Rethrows the first failure, with usablePixelsNote, when the retry fails.
+// estimateFirstKernel at the size given; when it fails (no usable windows, or the kernel at its size limit) and the
+// sharp shot has black areas, made again with them admitted to the kernel's usable pixels (the estimate works on
+// gradients: a black region is flat and dropped by the estimator's texture test, an edge into black loses only the
+// black threshold of its step), and result.kernel_sharp_black_admitted set; when that fails too (or there is no
+// black), made again with the kernel allowed to grow (state.kernel_may_grow; result.kernel_grown_to). A pair that
+// runs at the size given without its black is unchanged. Rethrows the first failure, with usablePixelsNote, when the
+// retries fail.
 void estimateFirstKernelAdmittingBlack(PairCalibrationState& state);
 // Where the kernel's pixels went, for a failed estimate's message: the share of the overlap that is usable and
 // what removed the rest (the sharp shot's black, either shot's clipped highlights), e.g. "usable: 18 % of the
 // overlap; the sharp shot is black over 66 %, clipped over 1 %, the blurred one clipped over 9 %" (and, black over
 // half of it or more, that a brighter short exposure would leave more).
 std::string usablePixelsNote(const PairCalibrationState& state);
+// The largest size the first kernel may grow to (PairCalibrationOptions::max_kernel_size; 0, automatic: a quarter of
+// the sharp shot's shorter side, odd, at most kAutomaticLargestKernel, never below the size it starts at).
+// Measured: a 119 px kernel on an 800 px frame took 17 min (the kernel <-> phi rounds), a 79 px one 4 min at most.
+constexpr int kAutomaticLargestKernel = 79;
+int largestKernelSize(const PairCalibrationState& state);
 // One kernel estimate on the canvas (s, b: canvas images); per_tile: also the tiles' own kernels.
 KernelEstimate estimateCanvasKernel(PairCalibrationState& state, const cv::Mat& s, const cv::Mat& b, bool per_tile,
                                     double lambda, const cv::Mat& weights);
