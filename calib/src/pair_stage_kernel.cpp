@@ -117,7 +117,6 @@ KernelEstimate intensityDomainKernel(PairCalibrationState& state, bool per_tile)
 // estimate and the canvas.
 KernelEstimate intensityDomainKernelGrowing(PairCalibrationState& state) {
   const int largest = state.kernel_may_grow ? largestKernelSize(state) : state.kernel_options.kernel_size;
-  const int start = state.options.kernel.kernel_size;  // the limit given (a retry may start from a grown one)
   const bool throws = state.kernel_options.throw_on_size_limit;
   while (true) {
     KernelEstimationOptions& ko = state.kernel_options;
@@ -131,17 +130,7 @@ KernelEstimate intensityDomainKernelGrowing(PairCalibrationState& state) {
       throw;
     }
     ko.throw_on_size_limit = throws;
-    if (!k.hit_size_limit || !can_grow) {
-      if (ko.kernel_size > start && state.result.kernel_grown_to != ko.kernel_size) {
-        state.result.kernel_grown_to = ko.kernel_size;
-        char buffer[200];
-        std::snprintf(buffer, sizeof buffer,
-                      "the blur is large: the kernel reached its %d px limit and was estimated at %dx%d px",
-                      start, ko.kernel_size, ko.kernel_size);
-        state.result.warnings.push_back(buffer);
-      }
-      return k;
-    }
+    if (!k.hit_size_limit || !can_grow) return k;
     const int grown = std::min(largest, (ko.kernel_size * 3 / 2) | 1);
     char detail[160];
     std::snprintf(detail, sizeof detail,
@@ -188,6 +177,18 @@ void recordSharpBlackAdmitted(PairCalibrationState& state, int black) {
   state.result.warnings.push_back(buffer);
 }
 
+// A first kernel grown past the size given: recorded (the verdict reads it) and said.
+void recordKernelGrowth(PairCalibrationState& state) {
+  const int start = state.options.kernel.kernel_size, size = state.kernel_options.kernel_size;
+  if (size <= start) return;
+  state.result.kernel_grown_to = size;
+  char buffer[200];
+  std::snprintf(buffer, sizeof buffer,
+                "the blur is large: the kernel reached its %d px limit and was estimated at %dx%d px", start, size,
+                size);
+  state.result.warnings.push_back(buffer);
+}
+
 // estimateFirstKernel once more; false when it fails too.
 bool retried(PairCalibrationState& state) {
   try {
@@ -220,13 +221,21 @@ void estimateFirstKernelAdmittingBlack(PairCalibrationState& state) {
       if (retried(state)) return recordSharpBlackAdmitted(state, black);
     }
     // ... then a larger kernel (a blur beyond the window: the estimate at its size limit; an estimate without edges
-    // fails again at once). Not gated by the same-scene correlation: a large blur lowers it (0.34 for a 42 px blur
-    // of a Levin image), and a kernel that fits at no size still ends in the two-scenes message.
-    if (largestKernelSize(state) > state.kernel_options.kernel_size) {
+    // fails again at once), without the black (measured: admitted, it made three large-blur pairs fail that grow
+    // without it) and then with it. Not gated by the same-scene correlation: a large blur lowers it (0.34 for a 42 px
+    // blur of a Levin image), and a kernel that fits at no size still ends in the two-scenes message.
+    if (largestKernelSize(state) > state.options.kernel.kernel_size) {
       state.kernel_may_grow = true;
-      if (retried(state)) {
-        if (state.kernel_admits_sharp_black) recordSharpBlackAdmitted(state, black);
-        return;
+      for (const bool admit : {false, true}) {
+        if (admit && !(black > 0 && state.same_scene_correlation >= doubtful_same_scene_correlation)) continue;
+        state.kernel_admits_sharp_black = admit;
+        state.kernel_options.kernel_size = state.options.kernel.kernel_size;  // each attempt grows from the start
+        alignToRegistration(state);
+        if (retried(state)) {
+          recordKernelGrowth(state);
+          if (admit) recordSharpBlackAdmitted(state, black);
+          return;
+        }
       }
     }
     throw InvalidInput(e.reason() + " (" + note + ")", e.subject());
