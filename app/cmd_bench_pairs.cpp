@@ -670,7 +670,7 @@ const BenchRegistration registration(
           ->check(CLI::Range(3, 151) & oddNumber());
       command.add_option("--max-kernel-size", args->max_kernel_size,
                          "Largest size the kernel may grow to, odd, at least --kernel-size (0: a quarter of the "
-                         "sharp shot's shorter side, at most 151; = --kernel-size: no growth)")
+                         "sharp shot's shorter side, at most 79; = --kernel-size: no growth)")
           ->capture_default_str()
           ->check(CLI::Range(0, 151));
       command.add_option("--channels", args->channels, "g or rgb")->capture_default_str()->check(CLI::IsMember({"g", "rgb"}));

@@ -556,7 +556,7 @@ const CommandRegistration registration(
           ->check(CLI::Range(3, 151) & oddNumber());
       command.add_option("--max-kernel-size", args->max_kernel_size,
                          "Largest kernel extent the estimate may grow to, odd, at least --kernel-size (0: a quarter "
-                         "of the sharp shot's shorter side, at most 151; = --kernel-size: no growth)")
+                         "of the sharp shot's shorter side, at most 79; = --kernel-size: no growth)")
           ->capture_default_str()
           ->check(CLI::Range(0, 151));
       command.add_option("--kernel", args->kernel_file, "Use this kernel (text matrix or image) instead of estimating")

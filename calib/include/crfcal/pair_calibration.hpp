@@ -31,10 +31,11 @@ namespace crfcal {
 struct PairCalibrationOptions {
   RegistrationOptions registration;
   KernelEstimationOptions kernel;
-  // A first kernel estimate that reaches its size limit (kernel.kernel_size) is made again 1.5× larger (odd), until
-  // it fits or reaches this size: a long handheld exposure can blur by more than the default 35 px, and the estimate
-  // itself shows when it does (its mass on the border). 0: automatic, a quarter of the sharp shot's shorter side, at
-  // most 151. Equal to kernel.kernel_size: no growth.
+  // A first kernel estimate that fails at kernel.kernel_size is tried with the sharp shot's black admitted, then made
+  // again 1.5× larger (odd) while it reaches its size limit, up to this size: a long handheld exposure can blur by
+  // more than the default 35 px, and the estimate itself shows when it does (its mass on the border). 0: automatic, a
+  // quarter of the sharp shot's shorter side, at most 79 (a 119 px kernel took 17 min on an 800 px frame). Equal to
+  // kernel.kernel_size: no growth. A grown kernel makes the verdict at most weak (docs/RESULTS.md#kernel-growth).
   int max_kernel_size = 0;
   TileSelectionOptions tiles;
   CrfFitOptions fit;                 // nominal_ratio = the EXIF ratio (footnote 4) or --ratio
