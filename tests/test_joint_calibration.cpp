@@ -211,7 +211,9 @@ TEST(JointCalibration, AnOffsetHiddenInThePairAtRatioOneIsFoundThereWithItsSize)
   const JointCalibrationResult clean = calibrateJointly(offsetPairs(0, ratios), options);
   const JointCalibrationResult offset = calibrateJointly(offsetPairs(factor, ratios, 2), options);
   const std::string numbers = "clean:\n" + clean.summary() + "\noffset in pair 3:\n" + offset.summary();
-  for (const JointPairSummary& pair : clean.pairs) EXPECT_LT(std::abs(pair.offset.at("G")), 0.3 * planted) << numbers;
+  for (const JointPairSummary& pair : clean.pairs) {
+    EXPECT_LT(std::abs(pair.offset.at("G")), 0.3 * planted) << numbers;
+  }
   EXPECT_NEAR(offset.pairs[2].offset.at("G"), planted, 0.25 * planted) << numbers;
   EXPECT_EQ(offset.pairs[0].offset.at("G"), 0.0) << numbers;
   EXPECT_EQ(offset.pairs[1].offset.at("G"), 0.0) << numbers;
