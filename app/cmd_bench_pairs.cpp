@@ -635,7 +635,7 @@ const BenchRegistration registration(
       command.add_option("--crf", args->crfs,
                          "True inverse response(s) phi (spec; default: measured curves of three cameras in "
                          "samples/camera_curves)");
-      command.add_option("--kernel", args->kernels, "True kernel(s): levin:N | box:L | FILE")->capture_default_str();
+      command.add_option("--kernel", args->kernels, "True kernel(s): levin:N | levin:N@S (scaled by S) | box:L | FILE")->capture_default_str();
       command.add_option("--ratio", args->ratios, "True exposure ratio(s) r (r > 2: the real regime unless --regime says otherwise)")
           ->capture_default_str()
           ->check(exposureRatioOption(false));

@@ -81,7 +81,7 @@ const CommandRegistration registration(
           ->check(CLI::ExistingFile);
       command.add_option("--crf", args->crf,
                          "Inverse response phi: gamma:G | ggcm:a0,a1,... | emor:c1,c2,... | table:FILE");
-      command.add_option("--kernel", args->kernel, "Blur kernel: levin:1..8 | box:L | FILE (text matrix or image)");
+      command.add_option("--kernel", args->kernel, "Blur kernel: levin:1..8 | levin:N@S (scaled by S) | box:L | FILE (text matrix or image)");
       command.add_option("--ratio", args->options.ratio, "Exposure ratio r = dt_B/dt_I (Eq. 4), 0.001 .. 1000")
           ->check(exposureRatioOption(false));
       command.add_option("--noise-var", args->options.noise_variance,
