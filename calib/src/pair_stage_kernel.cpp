@@ -203,6 +203,7 @@ bool retried(PairCalibrationState& state) {
 
 void estimateFirstKernelAdmittingBlack(PairCalibrationState& state) {
   state.kernel_may_grow = false;
+  const RegistrationResult first_registration = state.result.registration;
   try {
     estimateFirstKernel(state);
     return;
@@ -224,17 +225,29 @@ void estimateFirstKernelAdmittingBlack(PairCalibrationState& state) {
     // fails again at once), without the black (measured: admitted, it made three large-blur pairs fail that grow
     // without it) and then with it. Not gated by the same-scene correlation: a large blur lowers it (0.34 for a 42 px
     // blur of a Levin image), and a kernel that fits at no size still ends in the two-scenes message.
+    // A failed attempt leaves the registration its kernels refined. The growth starts from that registration and,
+    // where it fails there, once more from the first attempt's (measured on the large-blur run: each rescues two
+    // pairs the other loses); a second pass that would repeat the first is skipped.
     if (largestKernelSize(state) > state.options.kernel.kernel_size) {
       state.kernel_may_grow = true;
-      for (const bool admit : {false, true}) {
-        if (admit && !(black > 0 && state.same_scene_correlation >= doubtful_same_scene_correlation)) continue;
-        state.kernel_admits_sharp_black = admit;
-        state.kernel_options.kernel_size = state.options.kernel.kernel_size;  // each attempt grows from the start
-        alignToRegistration(state);
-        if (retried(state)) {
-          recordKernelGrowth(state);
-          if (admit) recordSharpBlackAdmitted(state, black);
-          return;
+      bool started_elsewhere = false;  // some first-pass attempt started from a registration a failure refined
+      for (const bool from_first_registration : {false, true}) {
+        if (from_first_registration && !started_elsewhere) break;
+        for (const bool admit : {false, true}) {
+          if (admit && !(black > 0 && state.same_scene_correlation >= doubtful_same_scene_correlation)) continue;
+          if (from_first_registration)
+            state.result.registration = first_registration;
+          else
+            started_elsewhere = started_elsewhere || cv::norm(state.result.registration.homography,
+                                                               first_registration.homography, cv::NORM_INF) > 0;
+          state.kernel_admits_sharp_black = admit;
+          state.kernel_options.kernel_size = state.options.kernel.kernel_size;  // each attempt grows from the start
+          alignToRegistration(state);
+          if (retried(state)) {
+            recordKernelGrowth(state);
+            if (admit) recordSharpBlackAdmitted(state, black);
+            return;
+          }
         }
       }
     }
