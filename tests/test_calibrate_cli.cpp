@@ -357,18 +357,24 @@ TEST(CalibratePairChecks, KernelFailureNamesTheSharpShotsBlackShare) {
   }
 }
 
-// A blur wider than the default 35 px limit (Levin's kernel 8 scaled 2.2×): the first estimate
-// reaches the limit and is made again 1.5× larger, so the pair calibrates and says so; with no growth allowed
-// (max_kernel_size = kernel_size) it stops at the limit as before.
-TEST(CalibratePairChecks, AKernelAtItsSizeLimitGrowsUntilTheBlurFits) {
+// Levin's image 1 blurred by Levin's kernel 8 scaled 2.2× (a 32 x 42 px trajectory, wider than the default 35 px
+// kernel), both 8-bit.
+void largeBlurPair(cv::Mat& sharp8, cv::Mat& blurred8) {
   cv::Mat kernel;
-  cv::resize(test::levinKernel(8), kernel, cv::Size(), 2.2, 2.2, cv::INTER_LINEAR);  // a 32 x 42 px trajectory
+  cv::resize(test::levinKernel(8), kernel, cv::Size(), 2.2, 2.2, cv::INTER_LINEAR);
   kernel /= cv::sum(kernel)[0];
   cv::Mat blurred;
   cv::filter2D(test::levinImage(1), blurred, -1, kernel, cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
-  cv::Mat sharp8, blurred8;
   test::levinImage(1).convertTo(sharp8, CV_8U, 255);
   blurred.convertTo(blurred8, CV_8U, 255);
+}
+
+// A blur wider than the default 35 px limit: the first estimate reaches the limit and is made again 1.5× larger, so
+// the pair calibrates and says so; with no growth allowed (max_kernel_size = kernel_size) it stops at the limit as
+// before.
+TEST(CalibratePairChecks, AKernelAtItsSizeLimitGrowsUntilTheBlurFits) {
+  cv::Mat sharp8, blurred8;
+  largeBlurPair(sharp8, blurred8);
   PairCalibrationOptions options = quickGreyPairOptions();
   options.fit.nominal_ratio = 1;
   options.rounds = 2;  // the kernel <-> phi rounds settle r at the grown size
@@ -395,6 +401,25 @@ TEST(CalibratePairChecks, AKernelAtItsSizeLimitGrowsUntilTheBlurFits) {
   }
   options.max_kernel_size = 34;  // even
   EXPECT_THROW(options.check(), InvalidInput);
+}
+
+// A growth capped below the blur (35 → 37 px for a 42 px trajectory) stops, and the stop names the size the
+// kernel reached, not the size it started at.
+TEST(CalibratePairChecks, AGrowthThatReachesItsCapStopsNamingTheSizeReached) {
+  cv::Mat sharp8, blurred8;
+  largeBlurPair(sharp8, blurred8);
+  PairCalibrationOptions options = quickGreyPairOptions();
+  options.fit.nominal_ratio = 1;
+  options.rounds = 0;
+  options.max_kernel_size = 37;
+  try {
+    calibratePair(sharp8, blurred8, options);
+    FAIL() << "a 42 px blur fitted a 37 px kernel";
+  } catch (const InvalidInput& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("size limit (37x37 px"), std::string::npos) << message;
+    EXPECT_EQ(message.find("35x35"), std::string::npos) << message;
+  }
 }
 
 // A night pair in the real regime (samples/pairs/night: St. Louis at night, r = 8, see its PROVENANCE): the short

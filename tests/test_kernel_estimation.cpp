@@ -178,22 +178,6 @@ TEST(KernelEstimation, SizeLimitIsReportedWithAHint) {
   }
 }
 
-// The verdict's border band (channel_verdict.hpp max_kernel_border_band_mass): Levin's kernel 4 (a 19×22 px
-// trajectory) leaves the band of a 45 px window (7 px wide) empty, and leans on the 3 px band of a 23 px window.
-TEST(KernelEstimation, ABlurThatFillsItsWindowLeansOnTheBorderBandAndOneThatFitsLeavesItEmpty) {
-  const cv::Mat sharp = mosaic();
-  const cv::Mat blurred = convolve(sharp, test::levinKernel(4));
-  KernelEstimationOptions options;
-  options.kernel_size = 45;
-  const KernelEstimate fits = estimateKernel(sharp, blurred, options);
-  EXPECT_LT(fits.border_band_mass, 0.005) << fits.summary();
-  options.kernel_size = 23;
-  options.throw_on_size_limit = false;
-  const KernelEstimate fills = estimateKernel(sharp, blurred, options);
-  EXPECT_GT(fills.border_band_mass, 0.02) << fills.summary();
-  EXPECT_DOUBLE_EQ(fills.border_band_mass, kernelBorderBandMass(fills.kernel));
-}
-
 TEST(KernelEstimation, FlatImagesHaveNoEdges) {
   const cv::Mat flat(200, 200, CV_64F, cv::Scalar(0.5));
   EXPECT_THROW(estimateKernel(flat, flat), InvalidInput);

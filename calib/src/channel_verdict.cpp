@@ -34,8 +34,6 @@ void VerdictOptions::check() const {
   if (!(flat_slope_fraction >= 0 && flat_slope_fraction < 1)) throw InvalidInput("verdict: flat_slope_fraction in [0, 1)");
   if (!(max_shape_sigma > 0)) throw InvalidInput("verdict: max_shape_sigma must be > 0");
   if (!(max_chroma_shape_difference > 0)) throw InvalidInput("verdict: max_chroma_shape_difference must be > 0");
-  if (!(max_kernel_border_band_mass > 0 && max_kernel_border_band_mass <= 1))
-    throw InvalidInput("verdict: max_kernel_border_band_mass in (0, 1]");
 }
 
 std::string ChannelVerdict::summary() const {
@@ -154,12 +152,6 @@ void judgeCurve(const ChannelEvidence& e, const VerdictOptions& o, Judgement& j)
            format("the blur outgrew the kernel's %.0f px limit and was estimated at %.0f px: r and phi rest on a "
                   "kernel at the estimator's reach (on such blurs most pairs' r came out more than 5 %% off)",
                   e.kernel_size_start, e.kernel_grown_to));
-  if (e.kernel_border_band_mass > o.max_kernel_border_band_mass)
-    j.find(VerdictLevel::weak,
-           format("%.0f %% of the kernel's mass lies within %.0f px of its %.0f px window's border: the blur is likely "
-                  "larger than the window and was squeezed into it (on such blurs most pairs' r came out more than "
-                  "5 %% off); a larger --kernel-size would show it",
-                  100 * e.kernel_border_band_mass, e.kernel_size / 6, e.kernel_size));
   if (e.chroma_check_replaced)
     j.notes.push_back(format("fitted where the sharp shot's subsampled chroma is flat: the pointwise fit differed "
                              "from this one in shape by %.4f (> %.2g) and lay below it (scale %.3f), the bias the "

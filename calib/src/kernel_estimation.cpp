@@ -247,16 +247,14 @@ Eigen::VectorXd solve(const NormalEquations& eq, Eigen::VectorXd k, double lambd
   return k;
 }
 
-// Fraction of K's mass within `ring` pixels of its border.
-double massWithinRing(const cv::Mat& K, int ring) {
+double borderMass(const cv::Mat& K) {
   const int n = K.rows;
+  const int ring = n >= 15 ? 2 : 1;
   const double total = cv::sum(K)[0];
-  if (!(total > 0) || n <= 2 * ring) return total > 0 ? 1 : 0;
+  if (!(total > 0)) return 0;
   const double inner = cv::sum(K(cv::Rect(ring, ring, n - 2 * ring, n - 2 * ring)))[0];
   return (total - inner) / total;
 }
-
-double borderMass(const cv::Mat& K) { return massWithinRing(K, K.rows >= 15 ? 2 : 1); }
 
 cv::Mat padTo(const cv::Mat& K, int n) {
   cv::Mat out = cv::Mat::zeros(n, n, CV_64F);
@@ -272,8 +270,6 @@ cv::Rect scaleRect(const cv::Rect& r, double scale) {
 }
 
 }  // namespace
-
-double kernelBorderBandMass(const cv::Mat& K) { return massWithinRing(K, K.rows / 6); }
 
 void KernelEstimationOptions::check() const {
   if (kernel_size < 3 || kernel_size % 2 == 0 || kernel_size > 151)
@@ -452,7 +448,6 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
   K /= cv::sum(K)[0];
   result.kernel = K;
   result.border_mass = borderMass(K);
-  result.border_band_mass = kernelBorderBandMass(K);
   result.hit_size_limit = result.border_mass > options.border_limit;
   result.support = cv::countNonZero(K);
   result.centroid = kernelCentroid(K);

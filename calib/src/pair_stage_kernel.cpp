@@ -189,14 +189,48 @@ void recordKernelGrowth(PairCalibrationState& state) {
   state.result.warnings.push_back(buffer);
 }
 
-// estimateFirstKernel once more; false when it fails too.
-bool retried(PairCalibrationState& state) {
+// estimateFirstKernel once more; false when it fails too, with its reason in `failure` when given.
+bool retried(PairCalibrationState& state, std::string* failure = nullptr) {
   try {
     estimateFirstKernel(state);
     return true;
-  } catch (const InvalidInput&) {
+  } catch (const InvalidInput& e) {
+    if (failure) *failure = e.reason();
     return false;
   }
+}
+
+// The first kernel made again, allowed to grow (a blur beyond the window: the estimate at its size limit; an estimate
+// without edges fails again at once), without the sharp shot's black (measured: admitted, it made three large-blur
+// pairs fail that grow without it) and then, where `may_admit_black`, with it. A failed attempt leaves the
+// registration its kernels refined: the growth starts from that registration and, where it fails there, once more
+// from `first_registration` (measured on the large-blur run: each rescues two pairs the other loses); a second pass
+// that would repeat the first is skipped. False when every attempt fails, with the first one's reason in `failure`
+// (at the largest size that attempt reached).
+bool grownFirstKernel(PairCalibrationState& state, const RegistrationResult& first_registration, int black,
+                      bool may_admit_black, std::string& failure) {
+  state.kernel_may_grow = true;
+  bool started_elsewhere = false;  // some first-pass attempt started from a registration a failure refined
+  for (const bool from_first_registration : {false, true}) {
+    if (from_first_registration && !started_elsewhere) break;
+    for (const bool admit : {false, true}) {
+      if (admit && !may_admit_black) continue;
+      if (from_first_registration)
+        state.result.registration = first_registration;
+      else
+        started_elsewhere = started_elsewhere || cv::norm(state.result.registration.homography,
+                                                           first_registration.homography, cv::NORM_INF) > 0;
+      state.kernel_admits_sharp_black = admit;
+      state.kernel_options.kernel_size = state.options.kernel.kernel_size;  // each attempt grows from the start
+      alignToRegistration(state);
+      if (retried(state, failure.empty() ? &failure : nullptr)) {
+        recordKernelGrowth(state);
+        if (admit) recordSharpBlackAdmitted(state, black);
+        return true;
+      }
+    }
+  }
+  return false;
 }
 
 }  // namespace
@@ -212,46 +246,24 @@ void estimateFirstKernelAdmittingBlack(PairCalibrationState& state) {
     cv::Mat black_in_overlap;
     cv::bitwise_and(state.sharp_black, state.overlap, black_in_overlap);
     const int black = cv::countNonZero(black_in_overlap);
-    // First the sharp shot's black admitted at the size given (a night frame: no usable windows without it), on a
-    // pair whose two shots show one scene (a doubtful one keeps its two-scenes message, pair_calibration.cpp) ...
-    if (!state.kernel_admits_sharp_black && black > 0 &&
-        state.same_scene_correlation >= doubtful_same_scene_correlation) {
+    // The sharp shot's black is admitted only on a pair whose two shots show one scene (a doubtful one keeps its
+    // two-scenes message, pair_calibration.cpp).
+    const bool may_admit_black = black > 0 && state.same_scene_correlation >= doubtful_same_scene_correlation;
+    // First the black admitted at the size given (a night frame: no usable windows without it) ...
+    if (!state.kernel_admits_sharp_black && may_admit_black) {
       state.kernel_admits_sharp_black = true;
       state.report("kernel", 0, "failed without the sharp shot's black areas: estimated again with them");
       alignToRegistration(state);
       if (retried(state)) return recordSharpBlackAdmitted(state, black);
     }
-    // ... then a larger kernel (a blur beyond the window: the estimate at its size limit; an estimate without edges
-    // fails again at once), without the black (measured: admitted, it made three large-blur pairs fail that grow
-    // without it) and then with it. Not gated by the same-scene correlation: a large blur lowers it (0.34 for a 42 px
-    // blur of a Levin image), and a kernel that fits at no size still ends in the two-scenes message.
-    // A failed attempt leaves the registration its kernels refined. The growth starts from that registration and,
-    // where it fails there, once more from the first attempt's (measured on the large-blur run: each rescues two
-    // pairs the other loses); a second pass that would repeat the first is skipped.
-    if (largestKernelSize(state) > state.options.kernel.kernel_size) {
-      state.kernel_may_grow = true;
-      bool started_elsewhere = false;  // some first-pass attempt started from a registration a failure refined
-      for (const bool from_first_registration : {false, true}) {
-        if (from_first_registration && !started_elsewhere) break;
-        for (const bool admit : {false, true}) {
-          if (admit && !(black > 0 && state.same_scene_correlation >= doubtful_same_scene_correlation)) continue;
-          if (from_first_registration)
-            state.result.registration = first_registration;
-          else
-            started_elsewhere = started_elsewhere || cv::norm(state.result.registration.homography,
-                                                               first_registration.homography, cv::NORM_INF) > 0;
-          state.kernel_admits_sharp_black = admit;
-          state.kernel_options.kernel_size = state.options.kernel.kernel_size;  // each attempt grows from the start
-          alignToRegistration(state);
-          if (retried(state)) {
-            recordKernelGrowth(state);
-            if (admit) recordSharpBlackAdmitted(state, black);
-            return;
-          }
-        }
-      }
-    }
-    throw InvalidInput(e.reason() + " (" + note + ")", e.subject());
+    // ... then a larger kernel. Not gated by the same-scene correlation: a large blur lowers it (0.34 for a 42 px blur
+    // of a Levin image), and a kernel that fits at no size still ends in the two-scenes message. When every growth
+    // fails, the stop names the growth's failure (at the size it reached) instead of the first attempt's.
+    std::string growth_failure;
+    if (largestKernelSize(state) > state.options.kernel.kernel_size &&
+        grownFirstKernel(state, first_registration, black, may_admit_black, growth_failure))
+      return;
+    throw InvalidInput((growth_failure.empty() ? e.reason() : growth_failure) + " (" + note + ")", e.subject());
   }
 }
 

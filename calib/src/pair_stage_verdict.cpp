@@ -179,8 +179,6 @@ void computeVerdict(PairCalibrationState& state) {
     e.kernel_sharp_black_admitted = result.kernel_sharp_black_admitted;
     e.kernel_grown_to = result.kernel_grown_to;
     e.kernel_size_start = state.options.kernel.kernel_size;
-    e.kernel_border_band_mass = result.kernel.border_band_mass;
-    e.kernel_size = result.kernel.kernel.rows;
     const auto& modelled = result.chroma_model_channels;
     if (name != "G" && options.sharp_stored_chroma.subsampled() &&
         std::find(modelled.begin(), modelled.end(), name) == modelled.end())

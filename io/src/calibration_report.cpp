@@ -122,8 +122,6 @@ json kernelJson(const PairCalibrationResult& result) {
   kernel["grown_to"] = result.kernel_grown_to;
   kernel["equations"] = result.kernel.equations;
   kernel["border_mass"] = result.kernel.border_mass;
-  // the mass within a sixth of the window's side of its border (the verdict reads it)
-  kernel["border_band_mass"] = result.kernel.border_band_mass;
   kernel["relative_residual"] = result.kernel.relative_residual;
   kernel["tiles"] = result.tiles.size();
   if (result.tile_kernels.size() > 1) {

@@ -79,13 +79,6 @@ struct VerdictOptions {
   // chroma is flat for the subsampling not to make the channel weak: the same shape target (issue 17's 0.01), not
   // fitted to any pair. Measured: docs/RESULTS.md#chroma-now.
   double max_chroma_shape_difference = 0.01;
-  // Largest share of the final kernel's mass within a sixth of its window's side of the border
-  // (KernelEstimate::border_band_mass) for an "ok". A blur larger than the window, squeezed into it, leans on that
-  // band without reaching the size limit's outermost ring; its r and φ were off on most such pairs. Chosen on the
-  // large-blur run (Levin kernels 4, 6, 8 scaled to 42–56 px: every kernel left at the 35 px window has ≥ 4.4 % there)
-  // and `bench pairs --ratio 4` (Levin kernels that fit: 0 % on every pair); reported on the other benches and the
-  // real pairs in docs/RESULTS.md#kernel-border-band.
-  double max_kernel_border_band_mass = 0.02;
   void check() const;  // throws InvalidInput
 };
 
@@ -148,9 +141,6 @@ struct ChannelEvidence {
   // kernel_size_start: the limit it outgrew.
   int kernel_grown_to = 0;
   int kernel_size_start = 0;
-  // KernelEstimate::border_band_mass of the final kernel and that kernel's side: > max_kernel_border_band_mass → weak.
-  double kernel_border_band_mass = 0;
-  int kernel_size = 0;
 };
 
 struct ChannelVerdict {

@@ -55,18 +55,11 @@ struct KernelLevelInfo {
   double relative_residual = 0;  // ‖∂B − g ∂I ⊗ K‖² / ‖∂B‖² on the level's pixels
 };
 
-// Fraction of K's mass within ⌊side / 6⌋ pixels of its border (0 for an empty kernel).
-double kernelBorderBandMass(const cv::Mat& K);
-
 struct KernelEstimate {
   cv::Mat kernel;             // CV_64F, sums to 1, kernel_size × kernel_size (odd)
   double gain = 1;            // Σk before normalisation (≈ exposure ratio in a linear domain)
   double relative_residual = 0;
   double border_mass = 0;     // fraction of the mass in the outermost ring
-  // Fraction of the mass within a sixth of the window's side of its border (kernelBorderBandMass). A blur larger than
-  // the window can be squeezed inside it without reaching the outermost ring (border_mass); it still leans on the
-  // band there, where a blur that fits leaves it empty. The verdict reads it (channel_verdict.hpp).
-  double border_band_mass = 0;
   bool hit_size_limit = false;
   cv::Point2d centroid;       // mass centroid relative to the kernel centre (residual shift), pixels
   int support = 0;            // non-zero entries
