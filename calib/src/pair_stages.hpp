@@ -153,9 +153,10 @@ void estimateFirstKernel(PairCalibrationState& state);
 // sharp shot has black areas, made again with them admitted to the kernel's usable pixels (the estimate works on
 // gradients: a black region is flat and dropped by the estimator's texture test, an edge into black loses only the
 // black threshold of its step), and result.kernel_sharp_black_admitted set; when that fails too (or there is no
-// black), made again with the kernel allowed to grow (state.kernel_may_grow; result.kernel_grown_to). A pair that
-// runs at the size given without its black is unchanged. Rethrows the first failure, with usablePixelsNote, when the
-// retries fail.
+// black), made again with the kernel allowed to grow (state.kernel_may_grow; result.kernel_grown_to), from the
+// registration the failed attempts left and then from the first attempt's. A pair that runs at the size given without
+// its black is unchanged. When the retries fail, throws the growth's first failure (the first attempt's when nothing
+// grew) with the first attempt's usablePixelsNote.
 void estimateFirstKernelAdmittingBlack(PairCalibrationState& state);
 // Where the kernel's pixels went, for a failed estimate's message: the share of the overlap that is usable and
 // what removed the rest (the sharp shot's black, either shot's clipped highlights), e.g. "usable: 18 % of the
