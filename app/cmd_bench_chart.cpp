@@ -278,8 +278,8 @@ struct MiddleburyCase {
 };
 
 // The shape error over the covered range ("aligned") per channel, averaged over the cases of a camera set.
-void printReferenceComparison(const ChartBenchArgs& args, const std::vector<MiddleburyCase>& cases,
-                              const std::vector<std::string>& cameras, size_t weight, nlohmann::json& json) {
+void printReferenceComparison(const ChartBenchArgs& args, const std::vector<MiddleburyCase>& cases, size_t weight,
+                              nlohmann::json& json) {
   std::printf("\nreference sets, exponent weight %s: shape error over the covered range (aligned), mean per channel; "
               "choose = cameras 1, 3, 5, 7, 9 in name order, report = 2, 4, 6, 8, 10\n",
               weightText(args.weights[weight]).c_str());
@@ -306,22 +306,21 @@ void printReferenceComparison(const ChartBenchArgs& args, const std::vector<Midd
                         {"rgb", (R + G + B) / 3}, {"exponent_smoothness", args.weights[weight]}});
       }
     }
-  (void)cameras;
 }
 
-nlohmann::json runMiddlebury(const ChartBenchArgs& args, const fs::path& root, Progress& progress) {
+// One Middlebury camera's chart shots, sampled from the JPEG and from the RAW.
+struct MiddleburyCamera {
+  std::string name;
+  std::vector<ChartShot> shots;
+  std::vector<int> scenes;  // the scene numbers its shots belong to
+};
+
+std::vector<MiddleburyCamera> loadMiddleburyCameras(const fs::path& root) {
   const std::vector<std::string> cameras = io::listMiddleburyCameras(root);
   if (cameras.empty()) throw Error("no Middlebury camera folders", root.string());
-  std::vector<chart::ReferenceSet> references;
-  for (const auto& name : args.references) references.push_back(chart::parseReferenceSet(name));
-  struct Camera {
-    std::string name;
-    std::vector<ChartShot> shots;
-    std::vector<int> scenes;
-  };
-  std::vector<Camera> data;
+  std::vector<MiddleburyCamera> data;
   for (const auto& camera : cameras) {
-    Camera one{camera, {}, {}};
+    MiddleburyCamera one{camera, {}, {}};
     for (const auto& shot : io::listMiddleburyShots(root / camera)) {
       ChartShot s;
       s.name = shot.name;
@@ -333,7 +332,15 @@ nlohmann::json runMiddlebury(const ChartBenchArgs& args, const fs::path& root, P
     }
     data.push_back(std::move(one));
   }
-  // The truth per weight and camera: `crfcal chart JPEG… --raw RAW…` on all shots (grey patches, one RAW scale).
+  return data;
+}
+
+// Every case (camera × reference × weight, and per scene with --per-scene) calibrated from the JPEG shots and scored
+// against the truth of its camera and weight: `crfcal chart JPEG… --raw RAW…` on all shots (grey patches, one RAW
+// scale).
+std::vector<MiddleburyCase> scoreMiddleburyCases(const ChartBenchArgs& args,
+                                                 const std::vector<chart::ReferenceSet>& references,
+                                                 const std::vector<MiddleburyCamera>& data, Progress& progress) {
   std::vector<std::vector<ChartCalibrationResult>> truth(args.weights.size(), std::vector<ChartCalibrationResult>(data.size()));
   std::vector<MiddleburyCase> cases;
   for (size_t w = 0; w < args.weights.size(); ++w)
@@ -379,14 +386,17 @@ nlohmann::json runMiddlebury(const ChartBenchArgs& args, const fs::path& root, P
     }
   });
   progress.done();
+  return cases;
+}
 
+// The summary per weight and reference set (all shots of each camera per call); its JSON array.
+nlohmann::json printMiddleburySummary(const ChartBenchArgs& args, const std::vector<MiddleburyCamera>& data,
+                                      const std::vector<MiddleburyCase>& cases) {
   nlohmann::json json = nlohmann::json::array();
-  std::printf("\nMiddlebury (%s): chart calibration from the JPEG shots (all 8 shots of a camera per call) vs RAW->JPEG "
-              "truth\n", root.string().c_str());
   std::printf("%-12s %-10s %9s %9s %9s %10s %10s %9s\n", "exp. weight", "reference", "median", "mean full", "max full",
               "median cov", "med. align", "max align");
   for (size_t w = 0; w < args.weights.size(); ++w)
-    for (size_t r = 0; r < references.size(); ++r) {
+    for (size_t r = 0; r < args.references.size(); ++r) {
       std::vector<Score> all;
       std::vector<double> covered, aligned;
       nlohmann::json per_camera = nlohmann::json::object();
@@ -411,11 +421,13 @@ nlohmann::json runMiddlebury(const ChartBenchArgs& args, const fs::path& root, P
       entry["cameras"] = per_camera;
       json.push_back(entry);
     }
-  // The per-camera tables for the library's default weight (or the last one given).
-  size_t shown = args.weights.size() - 1;
-  for (size_t w = 0; w < args.weights.size(); ++w)
-    if (args.weights[w] == ScaledFitOptions{}.exponent_smoothness) shown = w;
-  for (size_t r = 0; r < references.size(); ++r) {
+  return json;
+}
+
+// The per-camera tables of one weight, one per reference set.
+void printMiddleburyPerCamera(const ChartBenchArgs& args, const std::vector<MiddleburyCamera>& data,
+                              const std::vector<MiddleburyCase>& cases, size_t shown) {
+  for (size_t r = 0; r < args.references.size(); ++r) {
     std::printf("\nper camera, reference %s, exponent weight %s, all 8 shots: phi RMSE full [0,1] / covered / covered "
                 "scale-aligned\n", args.references[r].c_str(), weightText(args.weights[shown]).c_str());
     std::printf("| camera | R: full / covered / aligned | G: full / covered / aligned | B: full / covered / aligned |\n");
@@ -427,8 +439,24 @@ nlohmann::json runMiddlebury(const ChartBenchArgs& args, const fs::path& root, P
       std::printf("\n");
     }
   }
+}
+
+nlohmann::json runMiddlebury(const ChartBenchArgs& args, const fs::path& root, Progress& progress) {
+  const std::vector<MiddleburyCamera> data = loadMiddleburyCameras(root);
+  std::vector<chart::ReferenceSet> references;
+  for (const auto& name : args.references) references.push_back(chart::parseReferenceSet(name));
+  const std::vector<MiddleburyCase> cases = scoreMiddleburyCases(args, references, data, progress);
+
+  std::printf("\nMiddlebury (%s): chart calibration from the JPEG shots (all 8 shots of a camera per call) vs RAW->JPEG "
+              "truth\n", root.string().c_str());
+  const nlohmann::json json = printMiddleburySummary(args, data, cases);
+  // The per-camera tables for the library's default weight (or the last one given).
+  size_t shown = args.weights.size() - 1;
+  for (size_t w = 0; w < args.weights.size(); ++w)
+    if (args.weights[w] == ScaledFitOptions{}.exponent_smoothness) shown = w;
+  printMiddleburyPerCamera(args, data, cases, shown);
   nlohmann::json comparison = nlohmann::json::array();
-  printReferenceComparison(args, cases, cameras, shown, comparison);
+  printReferenceComparison(args, cases, shown, comparison);
   return {{"weights", json}, {"reference_comparison", comparison}};
 }
 

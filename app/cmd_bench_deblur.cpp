@@ -275,6 +275,108 @@ void printContrastTable(DeconvolutionOptions options) {
   }
 }
 
+// --pair: the sharp shot underexposed by --pair-ratio with a camera's raw noise at its ISO, and the options of the
+// residual deconvolution that uses it.
+struct PairSetting {
+  std::optional<PoissonGaussian> sharp_noise;  // empty without --pair
+  ResidualDeconvolutionOptions residual;
+  std::string description;  // the pair table's heading
+};
+
+PairSetting pairSettingOf(const DeblurBenchArgs& args, const DeconvolutionOptions& options) {
+  PairSetting setting;
+  if (!args.pair) return setting;
+  const io::CameraNoiseProfile camera = io::readCameraNoiseProfile(
+      args.noise_profiles.empty() ? io::defaultNoiseProfiles() : fs::path(args.noise_profiles), args.noise_camera);
+  const double sharp_iso = args.blurred_iso * args.pair_ratio;
+  setting.sharp_noise = camera.atIso(sharp_iso).green;
+  setting.residual.deconvolution = options;
+  setting.residual.deconvolution.domain = DeconvolutionDomain::Irradiance;
+  if (args.residual_lambda > 0) setting.residual.deconvolution.lambda = args.residual_lambda;
+  setting.residual.denoise_strength = args.denoise_strength;
+  setting.residual.check();
+  char text[200];
+  std::snprintf(text, sizeof text, "sharp shot underexposed by r = %g, %s raw noise at ISO %g, 8-bit; residual TV "
+                "lambda %g, NL-means h = %g sigma", args.pair_ratio, camera.camera().c_str(), sharp_iso,
+                setting.residual.deconvolution.lambda, args.denoise_strength);
+  setting.description = text;
+  return setting;
+}
+
+// One case of the bench: a Levin photo blurred by one kernel under one curve.
+struct DeblurCase {
+  const std::string& spec;
+  const ResponseCurve& curve;
+  const ResponseCurve& curve_off;  // φ off by --phi-error
+  const cv::Mat& image;            // the crop deblurred and scored
+  const cv::Mat& full_image;       // the whole photo, for --estimated-phi
+  const cv::Mat& kernel;
+  size_t image_index, kernel_index;
+};
+
+nlohmann::json scoresJson(const Scores& s) {
+  return nlohmann::json{{"psnr", s.psnr}, {"ssim", s.ssim}, {"edge_rmse", s.edge_rmse}};
+}
+
+// Deblurs one case by every method the arguments ask for and adds its scores to `means` and `all`.
+nlohmann::json runDeblurCase(const DeblurBenchArgs& args, DeconvolutionOptions options, const PairSetting& pair,
+                             const DeblurCase& c, Means& means, Means& all) {
+  const cv::Mat blurred = quantize(irradianceBlur(c.image, c.curve, c.kernel), 8);
+  options.domain = DeconvolutionDomain::Intensity;
+  const Scores intensity = score(deconvolve(blurred, c.kernel, {c.curve}, options).deblurred, c.image);
+  options.domain = DeconvolutionDomain::Irradiance;
+  const Scores irradiance = score(deconvolve(blurred, c.kernel, {c.curve}, options).deblurred, c.image);
+  const Scores irradiance_off = score(deconvolve(blurred, c.kernel, {c.curve_off}, options).deblurred, c.image);
+  const Scores before = score(blurred, c.image);
+  std::optional<ResponseCurve> estimated;
+  if (args.estimated_phi)
+    estimated = estimatedCurve(c.full_image, quantize(irradianceBlur(c.full_image, c.curve, c.kernel), 8));
+  if (estimated) {
+    const Scores with_estimate = score(deconvolve(blurred, c.kernel, {*estimated}, options).deblurred, c.image);
+    const double phi_rmse = curveRmse(*estimated, c.curve);
+    for (Means* m : {&means, &all}) {
+      m->estimated += with_estimate;
+      ++m->estimated_cases;
+      m->estimated_phi_rmse += phi_rmse;
+    }
+  }
+  Scores residual, sharp_prior;
+  if (pair.sharp_noise) {
+    const cv::Mat shot = underexposedSharpShot(c.image, io::parseResponseSpec(c.spec), args.pair_ratio,
+                                               *pair.sharp_noise, 1 + 16 * c.image_index + c.kernel_index);
+    const ResidualDeconvolutionResult r =
+        deconvolveResidual(blurred, shot, cv::Mat(), c.kernel, {c.curve}, pair.residual);
+    residual = score(r.deblurred, c.image);
+    sharp_prior = score(r.sharp_denoised, c.image);
+    for (Means* m : {&means, &all}) {
+      m->residual += residual;
+      m->sharp_prior += sharp_prior;
+      m->residual_ahead += residual.psnr > irradiance.psnr;
+    }
+  }
+  for (Means* m : {&means, &all}) {
+    ++m->cases;
+    m->blurred += before;
+    m->intensity += intensity;
+    m->irradiance += irradiance;
+    m->irradiance_off += irradiance_off;
+    m->irradiance_ahead += irradiance.psnr > intensity.psnr;
+  }
+  nlohmann::json entry = {{"curve", curveLabel(c.spec)}, {"image", c.image_index + 1}, {"kernel", c.kernel_index + 1},
+                          {"blurred", scoresJson(before)}, {"intensity", scoresJson(intensity)},
+                          {"irradiance", scoresJson(irradiance)}, {"irradiance_phi_off", scoresJson(irradiance_off)},
+                          {"blurred_psnr", before.psnr}, {"intensity_psnr", intensity.psnr},
+                          {"irradiance_psnr", irradiance.psnr}};
+  if (pair.sharp_noise) {
+    entry["residual_with_sharp"] = scoresJson(residual);
+    entry["sharp_denoised"] = scoresJson(sharp_prior);
+  }
+  if (args.per_case)
+    std::printf("  %s im%zu levin:%zu  %.2f  %.2f  %.2f  %.2f  %.2f\n", curveLabel(c.spec).c_str(), c.image_index + 1,
+                c.kernel_index + 1, before.psnr, intensity.psnr, irradiance.psnr, irradiance_off.psnr, residual.psnr);
+  return entry;
+}
+
 int runDeblurBench(const DeblurBenchArgs& args) {
   const fs::path samples = io::samplesDirectory();
   std::vector<std::string> curves = args.curves;
@@ -308,25 +410,7 @@ int runDeblurBench(const DeblurBenchArgs& args) {
   std::printf("%s deblurring, %zu images (%dx%d) x %zu Levin kernels, true kernel, 8-bit, no noise; irradiance with "
               "the true phi and with phi off by RMSE %.3f (phi^a, a > 1 and a < 1 on alternate cases)\n",
               args.method.c_str(), images.size(), images[0].cols, images[0].rows, kernels.size(), args.phi_error);
-  std::optional<PoissonGaussian> sharp_noise;
-  ResidualDeconvolutionOptions residual_options;
-  std::string pair_setting;
-  if (args.pair) {
-    const io::CameraNoiseProfile camera = io::readCameraNoiseProfile(
-        args.noise_profiles.empty() ? io::defaultNoiseProfiles() : fs::path(args.noise_profiles), args.noise_camera);
-    const double sharp_iso = args.blurred_iso * args.pair_ratio;
-    sharp_noise = camera.atIso(sharp_iso).green;
-    residual_options.deconvolution = options;
-    residual_options.deconvolution.domain = DeconvolutionDomain::Irradiance;
-    if (args.residual_lambda > 0) residual_options.deconvolution.lambda = args.residual_lambda;
-    residual_options.denoise_strength = args.denoise_strength;
-    residual_options.check();
-    char text[200];
-    std::snprintf(text, sizeof text, "sharp shot underexposed by r = %g, %s raw noise at ISO %g, 8-bit; residual TV "
-                  "lambda %g, NL-means h = %g sigma", args.pair_ratio, camera.camera().c_str(), sharp_iso,
-                  residual_options.deconvolution.lambda, args.denoise_strength);
-    pair_setting = text;
-  }
+  const PairSetting pair = pairSettingOf(args, options);
   std::vector<std::pair<std::string, Means>> rows;
   Means all;
   for (const std::string& spec : curves) {
@@ -336,70 +420,16 @@ int runDeblurBench(const DeblurBenchArgs& args) {
     Means means;
     for (size_t i = 0; i < images.size(); ++i)
       for (size_t k = 0; k < kernels.size(); ++k) {
-        const cv::Mat blurred = quantize(irradianceBlur(images[i], curve, kernels[k]), 8);
-        const ResponseCurve& off = (i + k) % 2 == 0 ? steeper : flatter;
-        options.domain = DeconvolutionDomain::Intensity;
-        const Scores intensity = score(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
-        options.domain = DeconvolutionDomain::Irradiance;
-        const Scores irradiance = score(deconvolve(blurred, kernels[k], {curve}, options).deblurred, images[i]);
-        const Scores irradiance_off = score(deconvolve(blurred, kernels[k], {off}, options).deblurred, images[i]);
-        const Scores before = score(blurred, images[i]);
-        std::optional<ResponseCurve> estimated;
-        if (args.estimated_phi)
-          estimated = estimatedCurve(full_images[i], quantize(irradianceBlur(full_images[i], curve, kernels[k]), 8));
-        if (estimated) {
-          const Scores with_estimate = score(deconvolve(blurred, kernels[k], {*estimated}, options).deblurred, images[i]);
-          const double phi_rmse = curveRmse(*estimated, curve);
-          for (Means* m : {&means, &all}) {
-            m->estimated += with_estimate;
-            ++m->estimated_cases;
-            m->estimated_phi_rmse += phi_rmse;
-          }
-        }
-        Scores residual, sharp_prior;
-        if (sharp_noise) {
-          const cv::Mat shot = underexposedSharpShot(images[i], io::parseResponseSpec(spec), args.pair_ratio,
-                                                     *sharp_noise, 1 + 16 * i + k);
-          const ResidualDeconvolutionResult r =
-              deconvolveResidual(blurred, shot, cv::Mat(), kernels[k], {curve}, residual_options);
-          residual = score(r.deblurred, images[i]);
-          sharp_prior = score(r.sharp_denoised, images[i]);
-          for (Means* m : {&means, &all}) {
-            m->residual += residual;
-            m->sharp_prior += sharp_prior;
-            m->residual_ahead += residual.psnr > irradiance.psnr;
-          }
-        }
-        for (Means* m : {&means, &all}) {
-          ++m->cases;
-          m->blurred += before;
-          m->intensity += intensity;
-          m->irradiance += irradiance;
-          m->irradiance_off += irradiance_off;
-          m->irradiance_ahead += irradiance.psnr > intensity.psnr;
-        }
-        const auto entry = [](const Scores& s) {
-          return nlohmann::json{{"psnr", s.psnr}, {"ssim", s.ssim}, {"edge_rmse", s.edge_rmse}};
-        };
-        json["cases"].push_back({{"curve", curveLabel(spec)}, {"image", i + 1}, {"kernel", k + 1},
-                                 {"blurred", entry(before)}, {"intensity", entry(intensity)},
-                                 {"irradiance", entry(irradiance)}, {"irradiance_phi_off", entry(irradiance_off)},
-                                 {"blurred_psnr", before.psnr}, {"intensity_psnr", intensity.psnr},
-                                 {"irradiance_psnr", irradiance.psnr}});
-        if (sharp_noise) {
-          json["cases"].back()["residual_with_sharp"] = entry(residual);
-          json["cases"].back()["sharp_denoised"] = entry(sharp_prior);
-        }
-        if (args.per_case)
-          std::printf("  %s im%zu levin:%zu  %.2f  %.2f  %.2f  %.2f  %.2f\n", curveLabel(spec).c_str(), i + 1, k + 1,
-                      before.psnr, intensity.psnr, irradiance.psnr, irradiance_off.psnr, residual.psnr);
+        const DeblurCase c{spec, curve, (i + k) % 2 == 0 ? steeper : flatter, images[i], full_images[i], kernels[k],
+                           i, k};
+        json["cases"].push_back(runDeblurCase(args, options, pair, c, means, all));
       }
     rows.emplace_back(curveLabel(spec), means);
   }
   if (curves.size() > 1) rows.emplace_back("all", all);
   printTables(rows);
   printContrastTable(options);
-  if (args.pair) printPairTable(rows, pair_setting);
+  if (args.pair) printPairTable(rows, pair.description);
   std::printf("%.1f s\n", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   if (!args.json.empty()) io::writeJsonOutput(args.json, json, "bench deblur");
   return kExitOk;

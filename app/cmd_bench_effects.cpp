@@ -479,16 +479,9 @@ std::string confusionMatrix(const std::vector<std::string>& labels, const std::v
   return out.str();
 }
 
-int runEffects(const EffectsArgs& args) {
-  std::vector<fs::path> inputs(args.photos.begin(), args.photos.end());
-  const io::OutputPolicy policy{"bench effects", inputs, args.force};
-  if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
-  std::optional<PairsOutput> pairs_out;  // refused or unwritable: fails now
-  if (!args.pairs_out.empty()) pairs_out.emplace(args.pairs_out, policy);
-  Sources src = args.photos.empty() ? loadSources() : loadPhotos(args.photos, loadSources());
-  if (args.sharp_noise == "sensor" || (args.sharp_noise == "auto" && args.ratio > 0))
-    src.noise_camera = io::readCameraNoiseProfile(
-        args.noise_profiles.empty() ? io::defaultNoiseProfiles() : fs::path(args.noise_profiles), args.noise_camera);
+// The rows to run: --effect as given, the two-effect pairs with --two-effects, else clean pairs and every effect.
+// Unknown names are refused here, before any work.
+std::vector<std::string> effectsToRun(const EffectsArgs& args) {
   std::vector<std::string> effects = args.effects;
   if (effects.empty() && args.two_effects) effects = kEffectPairs;
   if (effects.empty()) {
@@ -500,9 +493,13 @@ int runEffects(const EffectsArgs& args) {
     if (e == "none-estimated") e = kNoneEstimated;
     for (const auto& name : plantedNames(e)) plantingThreshold(name);  // unknown names: one-line error
   }
-  if (args.sweep) return runSweep(src, args, effects);
-  // Every (effect, seed) case is independent: run them `threads` at a time; the table is built from the results in
-  // case order, so it does not depend on the thread count (the progress lines come in completion order).
+  return effects;
+}
+
+// Every (effect, seed) case is independent: run them `threads` at a time; the results come back in case order, so
+// the table does not depend on the thread count (the progress lines come in completion order).
+std::vector<CaseResult> runEffectCases(const Sources& src, const EffectsArgs& args,
+                                       const std::vector<std::string>& effects, PairsOutput* pairs_out) {
   std::vector<std::pair<std::string, int>> cases;
   for (const auto& effect : effects)
     for (int seed = 1; seed <= args.seeds; ++seed) cases.emplace_back(effect, seed);
@@ -512,7 +509,7 @@ int runEffects(const EffectsArgs& args) {
   cv::parallel_for_(cv::Range(0, static_cast<int>(cases.size())), [&](const cv::Range& range) {
     for (int i = range.start; i < range.end; ++i) {
       const auto& [effect, seed] = cases[static_cast<std::size_t>(i)];
-      const CaseResult r = runCase(src, args, effect, seed, 0, true, pairs_out ? &*pairs_out : nullptr);
+      const CaseResult r = runCase(src, args, effect, seed, 0, true, pairs_out);
       std::string names;
       for (const auto& d : r.detected) names += (names.empty() ? "" : ",") + d;
       {
@@ -527,6 +524,71 @@ int runEffects(const EffectsArgs& args) {
       results[static_cast<std::size_t>(i)] = r;
     }
   }, threads > 1 ? static_cast<double>(cases.size()) : 1.0);
+  return results;
+}
+
+nlohmann::json caseJson(const CaseResult& r) {
+  return {{"effect", r.effect}, {"seed", r.seed}, {"strength", r.strength}, {"form", r.form},
+          {"detected", r.detected}, {"hit", r.hit}, {"exact", r.exact}, {"phi_rmse", r.rmse},
+          {"phi_rmse_base", r.rmse_base},
+          {"phi_rmse_clean_twin", r.rmse_clean}, {"phi_ok", r.phi_ok}, {"phi_shape", r.shape},
+          {"phi_shape_base", r.shape_base}, {"phi_shape_clean_twin", r.shape_clean},
+          {"shape_ok", r.shape_ok}, {"seconds", r.seconds},
+          {"calibration_seconds", r.calibration_seconds}, {"effects_seconds", r.effects_seconds},
+          {"error", r.error}};
+}
+
+// One row of the summary table: the cases of one planted effect (or pair of effects).
+std::string effectRow(const std::string& effect, const std::vector<CaseResult>& results) {
+  int n = 0, hit = 0, exact = 0, others = 0, ok = 0, shape_ok = 0, errors = 0;
+  std::vector<double> rm, rb, rc, sm, sb, sc;
+  double secs = 0;
+  for (const auto& r : results) {
+    if (r.effect != effect) continue;
+    ++n;
+    hit += r.hit;
+    exact += r.exact;
+    ok += r.phi_ok;
+    shape_ok += r.shape_ok;
+    for (const auto& d : r.detected)
+      if (!isPlanted(effect, d)) ++others;
+    if (r.error.empty()) {
+      rm.push_back(r.rmse);
+      rb.push_back(r.rmse_base);
+      rc.push_back(r.rmse_clean);
+      sm.push_back(r.shape);
+      sb.push_back(r.shape_base);
+      sc.push_back(r.shape_clean);
+    } else {
+      ++errors;
+    }
+    secs += r.seconds;
+  }
+  char line[600];
+  std::snprintf(line, sizeof line,
+                "| %s | %s | %d%s | %d (%.0f %%) | %d (%.0f %%) | %d | %d (%.0f %%) | %.4f | %.4f | %.4f | "
+                "%d (%.0f %%) | %.4f | %.4f | %.4f | %.1f |\n",
+                effect.c_str(), range(effect).c_str(), n,
+                errors ? (" (" + std::to_string(errors) + " failed)").c_str() : "", hit, 100.0 * hit / std::max(1, n),
+                exact, 100.0 * exact / std::max(1, n), others, ok, 100.0 * ok / std::max(1, n), median(rm),
+                median(rb), median(rc), shape_ok, 100.0 * shape_ok / std::max(1, n), median(sm), median(sb),
+                median(sc), secs / std::max(1, n));
+  return line;
+}
+
+int runEffects(const EffectsArgs& args) {
+  std::vector<fs::path> inputs(args.photos.begin(), args.photos.end());
+  const io::OutputPolicy policy{"bench effects", inputs, args.force};
+  if (!args.json.empty()) io::checkJsonOutputFile(args.json, policy);  // before the computation
+  std::optional<PairsOutput> pairs_out;  // refused or unwritable: fails now
+  if (!args.pairs_out.empty()) pairs_out.emplace(args.pairs_out, policy);
+  Sources src = args.photos.empty() ? loadSources() : loadPhotos(args.photos, loadSources());
+  if (args.sharp_noise == "sensor" || (args.sharp_noise == "auto" && args.ratio > 0))
+    src.noise_camera = io::readCameraNoiseProfile(
+        args.noise_profiles.empty() ? io::defaultNoiseProfiles() : fs::path(args.noise_profiles), args.noise_camera);
+  const std::vector<std::string> effects = effectsToRun(args);
+  if (args.sweep) return runSweep(src, args, effects);
+  const std::vector<CaseResult> results = runEffectCases(src, args, effects, pairs_out ? &*pairs_out : nullptr);
   std::ostringstream table;
   if (src.noise_camera) table << "sharp shot: sensor noise of " << src.noise_camera->summary() << "\n\n";
   table << "| planted effect | strength range | cases | detected (right name) | exactly right (no other) | "
@@ -535,48 +597,9 @@ int runEffects(const EffectsArgs& args) {
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   nlohmann::json json = nlohmann::json::array();
   for (const auto& effect : effects) {
-    int n = 0, hit = 0, exact = 0, others = 0, ok = 0, shape_ok = 0, errors = 0;
-    std::vector<double> rm, rb, rc, sm, sb, sc;
-    double secs = 0;
-    for (const auto& r : results) {
-      if (r.effect != effect) continue;
-      ++n;
-      hit += r.hit;
-      exact += r.exact;
-      ok += r.phi_ok;
-      shape_ok += r.shape_ok;
-      for (const auto& d : r.detected)
-        if (!isPlanted(effect, d)) ++others;
-      if (r.error.empty()) {
-        rm.push_back(r.rmse);
-        rb.push_back(r.rmse_base);
-        rc.push_back(r.rmse_clean);
-        sm.push_back(r.shape);
-        sb.push_back(r.shape_base);
-        sc.push_back(r.shape_clean);
-      } else {
-        ++errors;
-      }
-      secs += r.seconds;
-      json.push_back({{"effect", r.effect}, {"seed", r.seed}, {"strength", r.strength}, {"form", r.form},
-                      {"detected", r.detected}, {"hit", r.hit}, {"exact", r.exact}, {"phi_rmse", r.rmse},
-                      {"phi_rmse_base", r.rmse_base},
-                      {"phi_rmse_clean_twin", r.rmse_clean}, {"phi_ok", r.phi_ok}, {"phi_shape", r.shape},
-                      {"phi_shape_base", r.shape_base}, {"phi_shape_clean_twin", r.shape_clean},
-                      {"shape_ok", r.shape_ok}, {"seconds", r.seconds},
-                      {"calibration_seconds", r.calibration_seconds}, {"effects_seconds", r.effects_seconds},
-                      {"error", r.error}});
-    }
-    char line[600];
-    std::snprintf(line, sizeof line,
-                  "| %s | %s | %d%s | %d (%.0f %%) | %d (%.0f %%) | %d | %d (%.0f %%) | %.4f | %.4f | %.4f | "
-                  "%d (%.0f %%) | %.4f | %.4f | %.4f | %.1f |\n",
-                  effect.c_str(), range(effect).c_str(), n,
-                  errors ? (" (" + std::to_string(errors) + " failed)").c_str() : "", hit, 100.0 * hit / std::max(1, n),
-                  exact, 100.0 * exact / std::max(1, n), others, ok, 100.0 * ok / std::max(1, n), median(rm),
-                  median(rb), median(rc), shape_ok, 100.0 * shape_ok / std::max(1, n), median(sm), median(sb),
-                  median(sc), secs / std::max(1, n));
-    table << line;
+    for (const auto& r : results)
+      if (r.effect == effect) json.push_back(caseJson(r));
+    table << effectRow(effect, results);
   }
   table << "\n('none' rows: 'detected' = no effect reported; 1 − that is the false-alarm rate. 'none (kernel "
            "estimated)': clean pairs through the kernel-estimating path, where spatially_varying_blur is tested.)\n";

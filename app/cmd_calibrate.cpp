@@ -506,136 +506,156 @@ int runCalibrateJoint(const CalibrateArgs& args) {
   return kExitUnreliable;
 }
 
+// The shots, the pairs of a joint fit, where the output goes and how the shots are read.
+void addInputOptions(CLI::App& command, const std::shared_ptr<CalibrateArgs>& args) {
+  command.add_option("SHARP", args->first, "The short-exposure (sharp, noisy) shot");
+  command.add_option("BLURRED", args->second, "The long-exposure (blurred) shot");
+  command.add_option("--pair", args->pairs,
+                     "SHARP BLURRED of one pair, repeated: several pairs of one camera fitted jointly (one phi per "
+                     "channel, each pair's own kernel and r; instead of SHARP BLURRED)");
+  command.add_option("--pairs", args->pairs_file,
+                     "A manifest of pairs fitted jointly: one \"SHARP BLURRED\" a line (.csv or .txt; paths "
+                     "relative to the manifest)");
+  command.add_option("--joint-ratio-rounds", args->joint_ratio_rounds,
+                     "With --pair/--pairs: rounds moving each pair's r from its own fit's r to the least-squares "
+                     "r of its data at the joint phi, then refitting phi (0: each pair's r held; default " +
+                         std::to_string(JointCalibrationOptions{}.ratio_rounds) + ", stopping once no r moves)")
+      ->check(CLI::Range(0, 20));
+  // SHARP and BLURRED are required unless the pairs come from --pair/--pairs (CLI11's own message and exit).
+  command.parse_complete_callback([args] {
+    if (args->joint()) return;
+    if (args->first.empty()) throw CLI::RequiredError("SHARP");
+    if (args->second.empty()) throw CLI::RequiredError("BLURRED");
+  });
+  command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
+  command.add_flag("--force", args->force, kForceHelp);
+  command.add_option("--blurred", args->blurred, "Which argument is the blurred shot: auto, first, second")
+      ->check(CLI::IsMember({"auto", "first", "second"}));
+  command.add_flag("--no-white-balance", args->no_white_balance, "RAW: no white balance (sensor RGB)");
+  command.add_flag("--no-register", args->no_register, "The pair is already aligned (skip registration)");
+  auto* raw_truth = command.add_option("--raw-truth", args->raw_truth,
+                     "Camera RAW (or a linear PNG/TIFF) of one of the two shots: its RAW->JPEG relation, the "
+                     "camera's real response, is written to report.json (raw_truth) and compared with the result");
+  command.add_option("--raw-truth-of", args->raw_truth_of,
+                     "Which shot the --raw-truth file is: auto (same exposure in EXIF, else sharp), sharp, blurred")
+      ->check(CLI::IsMember({"auto", "sharp", "blurred"}))
+      ->needs(raw_truth);
+}
+
+// The blur kernel: its size and growth, a given kernel, and the kernel <-> phi rounds.
+void addKernelOptions(CLI::App& command, const std::shared_ptr<CalibrateArgs>& args) {
+  command.add_option("--kernel-size", args->kernel_size,
+                     "Kernel extent, odd (blur + residual shift); an estimate that reaches it is made again 1.5x "
+                     "larger, up to --max-kernel-size")
+      ->check(CLI::Range(3, 151) & oddNumber());
+  command.add_option("--max-kernel-size", args->max_kernel_size,
+                     "Largest kernel extent the estimate may grow to, odd, at least --kernel-size (0: a quarter "
+                     "of the sharp shot's shorter side, at most 79; = --kernel-size: no growth)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 151));
+  command.add_option("--kernel", args->kernel_file, "Use this kernel (text matrix or image) instead of estimating")
+      ->check(CLI::ExistingFile);
+  command.add_option("--rounds", args->rounds, "Kernel <-> phi rounds after the first fit")->check(CLI::Range(0, 10));
+  command.add_option("--irradiance-kernel-lambda", args->irradiance_kernel_lambda,
+                     "Sparsity weight of the irradiance-domain kernel rounds (the first estimate keeps 0.03)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  command.add_flag("--unweighted-irradiance-kernel", args->unweighted_irradiance_kernel,
+                   "Irradiance-domain kernel rounds without the 1/phi'(B) weights (ablation)");
+}
+
+// The fit of phi and r (Eq. 4, 19-25): channels, model, the exposure ratio, the noise, the effects.
+void addFitOptions(CLI::App& command, const std::shared_ptr<CalibrateArgs>& args) {
+  command.add_option("--chroma-model", args->chroma_model,
+                     "For a sharp JPEG with subsampled chroma (4:2:0, 4:2:2). check: the pointwise model, and "
+                     "an R or B whose fit where the lost chroma detail is small differs in shape and lies above "
+                     "(the sign of that loss's bias) is replaced by that fit (docs/RESULTS.md#chroma-replace); "
+                     "auto: R and B fitted both ways in every round, keeping the chroma model's fit where it lies "
+                     "above (docs/RESULTS.md#chroma-choice); off: the pointwise model everywhere")
+      ->capture_default_str()
+      ->check(chromaModelNames());
+  command.add_option("--channels", args->channels, "Channels to fit: g (green only) or rgb")
+      ->check(CLI::IsMember({"g", "rgb"}));
+  command.add_option("--model", args->model, "Model of phi: ggcm (Eq. 19), emor (PCA), auto (cross-validated)")
+      ->check(crfModelNames());
+  command.add_option("--emor-terms", args->emor_terms,
+                     "EMoR basis curves of the emor model (Grossberg & Nayar: 3-5 reach DoRF accuracy)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 25));
+  command.add_option("--ratio", args->ratio,
+                     "Exposure ratio r = dt_B/dt_I, 1/1000 .. 1000 (default 0: from EXIF, footnote 4)")
+      ->check(exposureRatioOption());
+  command.add_flag("--fix-ratio", args->fix_ratio,
+                   "Keep r at the EXIF/--ratio value instead of fitting it (weak blur leaves r and the curve's "
+                   "exponent ambiguous: phi^g, r^g fit equally)");
+  command.add_flag("--always-fit-ratio", args->always_fit_ratio,
+                   "Fit r even when the blur is too small to determine it (by default, with a kernel RMS radius "
+                   "< 1 px and the images' r more than 10 % from the EXIF/--ratio value, r is held at that value)")
+      ->excludes("--fix-ratio");
+  command.add_option("--ratio-evidence", args->ratio_evidence,
+                     "on: r from the images combined with the EXIF/--ratio value by their precisions, the images' "
+                     "measured on half-sample refits (a blur that fixes r keeps the images' r; one that does not "
+                     "hands it to EXIF); off: r from the images alone")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"on", "off"}));
+  command.add_flag("--ratio-noise-bias", args->ratio_noise_bias,
+                   "With --ratio-evidence on: also measure the noise bias of the images' r by SIMEX and widen its "
+                   "sigma by it (three more fits of G; measured not to help, docs/RESULTS.md)");
+  command.add_option("--ratio-prior", args->ratio_prior,
+                     "Fitted r: sigma of the prior on log r around the EXIF/--ratio value, weighed against what the "
+                     "blur determines (0: r from the images alone)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  command.add_option("--shoulder", args->shoulder,
+                     "Extrapolation of phi above the data: rising-free (the local exponent may rise freely), "
+                     "mean-camera (it rises like the EMoR mean curve's) or learned (above and below the data: a "
+                     "prior learned from the measured camera curves in samples/camera_curves)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"rising-free", "mean-camera", "learned"}));
+  command.add_option("--noise-handling", args->noise_handling,
+                     "The sharp shot's noise in the fit: jensen (second-order correction of Jensen's bias), none, "
+                     "debias (deconvolution), denoise (bilateral)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"jensen", "none", "debias", "denoise"}));
+  command.add_option("--censored-weight", args->censored_weight,
+                     "Weight of the blurred shot's clipped pixels as censored observations of the fit (where B "
+                     "clips, r (phi(I) (x) K) >= phi(1); 1: as data, 0: excluded as in the seed)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  command.add_flag("--no-effects", args->no_effects,
+                   "Skip the effect diagnostics (effects.hpp): faster; phi is the base fit of Eq. 4");
+}
+
+// The band of phi, threads, the exit code and the progress output.
+void addReportOptions(CLI::App& command, const std::shared_ptr<CalibrateArgs>& args) {
+  command.add_option("--band-replicates", args->band_replicates,
+                     "Half-sample refits per channel for the 90 % band of phi (even; more: a steadier band, "
+                     "each costs about half a fit; 0: no band)")
+      ->capture_default_str()
+      ->check(bandReplicates());
+  command.add_option("--band-above", args->band_above,
+                     "The band above the covered range: the 90 % spread of the prior learned from the measured "
+                     "camera curves in samples/camera_curves, given the curve's shape on the data (learned), or "
+                     "bounds on phi's local exponent there (bounds)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"bounds", "learned"}));
+  command.add_option("--threads", args->threads, "Worker threads, 0 .. " + std::to_string(kMaxThreads) +
+                                                     " (0: all cores)")
+      ->check(CLI::Range(0, kMaxThreads));
+  command.add_flag("--strict", args->strict,
+                   "Exit with code 4 when any channel's verdict is \"unreliable\" (the outputs are still written; "
+                   "report.json verdict_reasons says why)");
+  command.add_flag("-q,--quiet", args->quiet, "No progress output");
+}
+
 const CommandRegistration registration(
     30, "calibrate", "Measure the camera response from a real handheld sharp/blurred pair (JPEG, PNG, TIFF or RAW; Sec. 4)",
     [](CLI::App& command) {
       auto args = std::make_shared<CalibrateArgs>();
-      command.add_option("SHARP", args->first, "The short-exposure (sharp, noisy) shot");
-      command.add_option("BLURRED", args->second, "The long-exposure (blurred) shot");
-      command.add_option("--pair", args->pairs,
-                         "SHARP BLURRED of one pair, repeated: several pairs of one camera fitted jointly (one phi per "
-                         "channel, each pair's own kernel and r; instead of SHARP BLURRED)");
-      command.add_option("--pairs", args->pairs_file,
-                         "A manifest of pairs fitted jointly: one \"SHARP BLURRED\" a line (.csv or .txt; paths "
-                         "relative to the manifest)");
-      command.add_option("--joint-ratio-rounds", args->joint_ratio_rounds,
-                         "With --pair/--pairs: rounds moving each pair's r from its own fit's r to the least-squares "
-                         "r of its data at the joint phi, then refitting phi (0: each pair's r held; default " +
-                             std::to_string(JointCalibrationOptions{}.ratio_rounds) + ", stopping once no r moves)")
-          ->check(CLI::Range(0, 20));
-      // SHARP and BLURRED are required unless the pairs come from --pair/--pairs (CLI11's own message and exit).
-      command.parse_complete_callback([args] {
-        if (args->joint()) return;
-        if (args->first.empty()) throw CLI::RequiredError("SHARP");
-        if (args->second.empty()) throw CLI::RequiredError("BLURRED");
-      });
-      command.add_option("-o,--output", args->output, "Output directory (created or replaced atomically)")->required();
-      command.add_flag("--force", args->force, kForceHelp);
-      command.add_option("--chroma-model", args->chroma_model,
-                         "For a sharp JPEG with subsampled chroma (4:2:0, 4:2:2). check: the pointwise model, and "
-                         "an R or B whose fit where the lost chroma detail is small differs in shape and lies above "
-                         "(the sign of that loss's bias) is replaced by that fit (docs/RESULTS.md#chroma-replace); "
-                         "auto: R and B fitted both ways in every round, keeping the chroma model's fit where it lies "
-                         "above (docs/RESULTS.md#chroma-choice); off: the pointwise model everywhere")
-          ->capture_default_str()
-          ->check(chromaModelNames());
-      command.add_option("--channels", args->channels, "Channels to fit: g (green only) or rgb")
-          ->check(CLI::IsMember({"g", "rgb"}));
-      command.add_option("--model", args->model, "Model of phi: ggcm (Eq. 19), emor (PCA), auto (cross-validated)")
-          ->check(crfModelNames());
-      command.add_option("--emor-terms", args->emor_terms,
-                         "EMoR basis curves of the emor model (Grossberg & Nayar: 3-5 reach DoRF accuracy)")
-          ->capture_default_str()
-          ->check(CLI::Range(1, 25));
-      command.add_option("--ratio", args->ratio,
-                         "Exposure ratio r = dt_B/dt_I, 1/1000 .. 1000 (default 0: from EXIF, footnote 4)")
-          ->check(exposureRatioOption());
-      command.add_option("--kernel-size", args->kernel_size,
-                         "Kernel extent, odd (blur + residual shift); an estimate that reaches it is made again 1.5x "
-                         "larger, up to --max-kernel-size")
-          ->check(CLI::Range(3, 151) & oddNumber());
-      command.add_option("--max-kernel-size", args->max_kernel_size,
-                         "Largest kernel extent the estimate may grow to, odd, at least --kernel-size (0: a quarter "
-                         "of the sharp shot's shorter side, at most 79; = --kernel-size: no growth)")
-          ->capture_default_str()
-          ->check(CLI::Range(0, 151));
-      command.add_option("--kernel", args->kernel_file, "Use this kernel (text matrix or image) instead of estimating")
-          ->check(CLI::ExistingFile);
-      command.add_option("--rounds", args->rounds, "Kernel <-> phi rounds after the first fit")->check(CLI::Range(0, 10));
-      command.add_option("--band-replicates", args->band_replicates,
-                         "Half-sample refits per channel for the 90 % band of phi (even; more: a steadier band, "
-                         "each costs about half a fit; 0: no band)")
-          ->capture_default_str()
-          ->check(bandReplicates());
-      command.add_option("--blurred", args->blurred, "Which argument is the blurred shot: auto, first, second")
-          ->check(CLI::IsMember({"auto", "first", "second"}));
-      command.add_option("--threads", args->threads, "Worker threads, 0 .. " + std::to_string(kMaxThreads) +
-                                                         " (0: all cores)")
-          ->check(CLI::Range(0, kMaxThreads));
-      command.add_flag("--no-white-balance", args->no_white_balance, "RAW: no white balance (sensor RGB)");
-      command.add_flag("--no-register", args->no_register, "The pair is already aligned (skip registration)");
-      command.add_flag("--fix-ratio", args->fix_ratio,
-                       "Keep r at the EXIF/--ratio value instead of fitting it (weak blur leaves r and the curve's "
-                       "exponent ambiguous: phi^g, r^g fit equally)");
-      command.add_flag("--always-fit-ratio", args->always_fit_ratio,
-                       "Fit r even when the blur is too small to determine it (by default, with a kernel RMS radius "
-                       "< 1 px and the images' r more than 10 % from the EXIF/--ratio value, r is held at that value)")
-          ->excludes("--fix-ratio");
-      command.add_option("--shoulder", args->shoulder,
-                         "Extrapolation of phi above the data: rising-free (the local exponent may rise freely), "
-                         "mean-camera (it rises like the EMoR mean curve's) or learned (above and below the data: a "
-                         "prior learned from the measured camera curves in samples/camera_curves)")
-          ->capture_default_str()
-          ->check(CLI::IsMember({"rising-free", "mean-camera", "learned"}));
-      command.add_option("--band-above", args->band_above,
-                         "The band above the covered range: the 90 % spread of the prior learned from the measured "
-                         "camera curves in samples/camera_curves, given the curve's shape on the data (learned), or "
-                         "bounds on phi's local exponent there (bounds)")
-          ->capture_default_str()
-          ->check(CLI::IsMember({"bounds", "learned"}));
-      command.add_option("--irradiance-kernel-lambda", args->irradiance_kernel_lambda,
-                         "Sparsity weight of the irradiance-domain kernel rounds (the first estimate keeps 0.03)")
-          ->capture_default_str()
-          ->check(CLI::NonNegativeNumber);
-      command.add_flag("--unweighted-irradiance-kernel", args->unweighted_irradiance_kernel,
-                       "Irradiance-domain kernel rounds without the 1/phi'(B) weights (ablation)");
-      command.add_flag("--no-effects", args->no_effects,
-                       "Skip the effect diagnostics (effects.hpp): faster; phi is the base fit of Eq. 4");
-      command.add_option("--noise-handling", args->noise_handling,
-                         "The sharp shot's noise in the fit: jensen (second-order correction of Jensen's bias), none, "
-                         "debias (deconvolution), denoise (bilateral)")
-          ->capture_default_str()
-          ->check(CLI::IsMember({"jensen", "none", "debias", "denoise"}));
-      command.add_option("--ratio-evidence", args->ratio_evidence,
-                         "on: r from the images combined with the EXIF/--ratio value by their precisions, the images' "
-                         "measured on half-sample refits (a blur that fixes r keeps the images' r; one that does not "
-                         "hands it to EXIF); off: r from the images alone")
-          ->capture_default_str()
-          ->check(CLI::IsMember({"on", "off"}));
-      command.add_flag("--ratio-noise-bias", args->ratio_noise_bias,
-                       "With --ratio-evidence on: also measure the noise bias of the images' r by SIMEX and widen its "
-                       "sigma by it (three more fits of G; measured not to help, docs/RESULTS.md)");
-      command.add_option("--ratio-prior", args->ratio_prior,
-                         "Fitted r: sigma of the prior on log r around the EXIF/--ratio value, weighed against what the "
-                         "blur determines (0: r from the images alone)")
-          ->capture_default_str()
-          ->check(CLI::NonNegativeNumber);
-      command.add_option("--censored-weight", args->censored_weight,
-                         "Weight of the blurred shot's clipped pixels as censored observations of the fit (where B "
-                         "clips, r (phi(I) (x) K) >= phi(1); 1: as data, 0: excluded as in the seed)")
-          ->capture_default_str()
-          ->check(CLI::NonNegativeNumber);
-      auto* raw_truth = command.add_option("--raw-truth", args->raw_truth,
-                         "Camera RAW (or a linear PNG/TIFF) of one of the two shots: its RAW->JPEG relation, the "
-                         "camera's real response, is written to report.json (raw_truth) and compared with the result");
-      command.add_option("--raw-truth-of", args->raw_truth_of,
-                         "Which shot the --raw-truth file is: auto (same exposure in EXIF, else sharp), sharp, blurred")
-          ->check(CLI::IsMember({"auto", "sharp", "blurred"}))
-          ->needs(raw_truth);
-      command.add_flag("--strict", args->strict,
-                       "Exit with code 4 when any channel's verdict is \"unreliable\" (the outputs are still written; "
-                       "report.json verdict_reasons says why)");
-      command.add_flag("-q,--quiet", args->quiet, "No progress output");
+      addInputOptions(command, args);
+      addKernelOptions(command, args);
+      addFitOptions(command, args);
+      addReportOptions(command, args);
       return [args] { return args->joint() ? runCalibrateJoint(*args) : runCalibrate(*args); };
     });
 
