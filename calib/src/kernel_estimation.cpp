@@ -1,4 +1,5 @@
 #include "crfcal/kernel_estimation.hpp"
+#include "kernel_pieces.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -247,15 +248,6 @@ Eigen::VectorXd solve(const NormalEquations& eq, Eigen::VectorXd k, double lambd
   return k;
 }
 
-double borderMass(const cv::Mat& K) {
-  const int n = K.rows;
-  const int ring = n >= 15 ? 2 : 1;
-  const double total = cv::sum(K)[0];
-  if (!(total > 0)) return 0;
-  const double inner = cv::sum(K(cv::Rect(ring, ring, n - 2 * ring, n - 2 * ring)))[0];
-  return (total - inner) / total;
-}
-
 cv::Mat padTo(const cv::Mat& K, int n) {
   cv::Mat out = cv::Mat::zeros(n, n, CV_64F);
   const int oy = (n - K.rows) / 2, ox = (n - K.cols) / 2;
@@ -430,36 +422,16 @@ KernelEstimate estimateKernel(const cv::Mat& sharp_in, const cv::Mat& blurred_in
   double peak = 0;
   cv::minMaxLoc(K, nullptr, &peak);
   K.setTo(0, K < options.prune_threshold * peak);
-  {
-    // Keep the connected parts of the support that carry real mass: isolated specks are noise ([27] likewise
-    // removes them by hysteresis thresholding). Components with < 10 % of the largest one's mass are dropped.
-    cv::Mat labels;
-    const cv::Mat support8 = K > 0;
-    const int count = cv::connectedComponents(support8, labels, 8, CV_32S);
-    std::vector<double> mass(static_cast<std::size_t>(count), 0);
-    for (int y = 0; y < K.rows; ++y)
-      for (int x = 0; x < K.cols; ++x) mass[static_cast<std::size_t>(labels.at<int>(y, x))] += K.at<double>(y, x);
-    double largest = 0;
-    for (int l = 1; l < count; ++l) largest = std::max(largest, mass[static_cast<std::size_t>(l)]);
-    for (int y = 0; y < K.rows; ++y)
-      for (int x = 0; x < K.cols; ++x)
-        if (mass[static_cast<std::size_t>(labels.at<int>(y, x))] < 0.1 * largest) K.at<double>(y, x) = 0;
-  }
+  const detail::KernelPieces pieces = detail::keepMassivePieces(K);
   K /= cv::sum(K)[0];
   result.kernel = K;
-  result.border_mass = borderMass(K);
+  result.border_mass = detail::borderMass(K);
   result.hit_size_limit = result.border_mass > options.border_limit;
   result.support = cv::countNonZero(K);
   result.centroid = kernelCentroid(K);
   if (options.progress) options.progress(1.0, "kernel");
-  if (result.hit_size_limit && options.throw_on_size_limit) {
-    char buffer[300];
-    std::snprintf(buffer, sizeof buffer,
-                  "the blur kernel reaches its size limit (%dx%d px, %.0f%% of its mass on the border): the blur or "
-                  "the residual misregistration is larger; try a larger --max-kernel-size",
-                  K.cols, K.rows, 100 * result.border_mass);
-    throw InvalidInput(buffer);
-  }
+  if (result.hit_size_limit && options.throw_on_size_limit)
+    throw InvalidInput(detail::kernelSizeLimitMessage(K, pieces));
   return result;
 }
 
