@@ -447,8 +447,8 @@ nlohmann::json runMiddlebury(const ChartBenchArgs& args, const fs::path& root, P
   for (const auto& name : args.references) references.push_back(chart::parseReferenceSet(name));
   const std::vector<MiddleburyCase> cases = scoreMiddleburyCases(args, references, data, progress);
 
-  std::printf("\nMiddlebury (%s): chart calibration from the JPEG shots (all 8 shots of a camera per call) vs RAW->JPEG "
-              "truth\n", root.string().c_str());
+  std::printf("\nMiddlebury (%s): chart calibration from the JPEG shots (all 8 shots of a camera per call) vs "
+              "RAW->JPEG truth\n", root.string().c_str());
   const nlohmann::json json = printMiddleburySummary(args, data, cases);
   // The per-camera tables for the library's default weight (or the last one given).
   size_t shown = args.weights.size() - 1;

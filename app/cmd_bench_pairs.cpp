@@ -627,12 +627,15 @@ int runPairs(const PairsArgs& args) {
 void addSimulationOptions(CLI::App& command, const std::shared_ptr<PairsArgs>& args) {
   command.add_option("--image", args->images, "Real photo(s) to make pairs from (default: three photos of --data)")
       ->check(CLI::ExistingFile);
-  command.add_option("--data", args->data, "The shared data directory (default: $CRFCAL_SHARED_DATA or ../shared/data)");
+  command.add_option("--data", args->data,
+                     "The shared data directory (default: $CRFCAL_SHARED_DATA or ../shared/data)");
   command.add_option("--crf", args->crfs,
                      "True inverse response(s) phi (spec; default: measured curves of three cameras in "
                      "samples/camera_curves)");
-  command.add_option("--kernel", args->kernels, "True kernel(s): levin:N | levin:N@S (scaled by S) | box:L | FILE")->capture_default_str();
-  command.add_option("--ratio", args->ratios, "True exposure ratio(s) r (r > 2: the real regime unless --regime says otherwise)")
+  command.add_option("--kernel", args->kernels, "True kernel(s): levin:N | levin:N@S (scaled by S) | box:L | FILE")
+      ->capture_default_str();
+  command.add_option("--ratio", args->ratios,
+                     "True exposure ratio(s) r (r > 2: the real regime unless --regime says otherwise)")
       ->capture_default_str()
       ->check(exposureRatioOption(false));
   command.add_option("--exif-error", args->exif_error, "Relative error of the EXIF ratio against the truth")
@@ -643,11 +646,13 @@ void addSimulationOptions(CLI::App& command, const std::shared_ptr<PairsArgs>& a
       ->capture_default_str();
   command.add_option("--quality", args->quality, "JPEG quality")->capture_default_str()->check(CLI::Range(50, 100));
   command.add_option("--sharp-quality", args->sharp_quality,
-                     "JPEG quality of the sharp shot alone (0: --quality), to change one part of the simulation at a time")
+                     "JPEG quality of the sharp shot alone (0: --quality), to change one part of the simulation at "
+                     "a time")
       ->capture_default_str()
       ->check(CLI::Range(0, 100));
   command.add_option("--sharp-noise-scale", args->sharp_noise_scale,
-                     "Real regime: factor on the sharp shot's noise variance (0: noise-free; 1: its ISO's measured noise)")
+                     "Real regime: factor on the sharp shot's noise variance (0: noise-free; 1: its ISO's measured "
+                     "noise)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   command.add_option("--jpeg-sampling", args->jpeg_sampling,
@@ -699,11 +704,15 @@ void addCalibrationOptions(CLI::App& command, const std::shared_ptr<PairsArgs>& 
                      "sharp shot's shorter side, at most 79; = --kernel-size: no growth)")
       ->capture_default_str()
       ->check(CLI::Range(0, 151));
-  command.add_option("--channels", args->channels, "g or rgb")->capture_default_str()->check(CLI::IsMember({"g", "rgb"}));
-  command.add_option("--noise-handling", args->noise_handling, "The sharp shot's noise in the fit: jensen, none, debias, denoise")
+  command.add_option("--channels", args->channels, "g or rgb")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"g", "rgb"}));
+  command.add_option("--noise-handling", args->noise_handling,
+                     "The sharp shot's noise in the fit: jensen, none, debias, denoise")
       ->capture_default_str()
       ->check(CLI::IsMember({"jensen", "none", "debias", "denoise"}));
-  command.add_flag("--fix-ratio", args->fix_ratio, "Keep r at the (deliberately off) EXIF value, as calibrate --fix-ratio");
+  command.add_flag("--fix-ratio", args->fix_ratio,
+                   "Keep r at the (deliberately off) EXIF value, as calibrate --fix-ratio");
   command.add_option("--learned-prior-weight", args->learned_prior_weight,
                      "--shoulder learned: weight of the learned prior's rows")
       ->capture_default_str()
@@ -722,12 +731,14 @@ void addCalibrationOptions(CLI::App& command, const std::shared_ptr<PairsArgs>& 
   command.add_flag("--noise-oracle", args->noise_oracle,
                    "Real regime: give the fit the sharp shot's true noise per level (an oracle: what a noise "
                    "estimate would have to deliver; with --noise-handling debias, docs/RESULTS.md#stop-38-leads)");
-  command.add_flag("--always-fit-ratio", args->always_fit_ratio, "Fit r even when a sub-pixel blur leaves it undetermined, as calibrate --always-fit-ratio");
+  command.add_flag("--always-fit-ratio", args->always_fit_ratio,
+                   "Fit r even when a sub-pixel blur leaves it undetermined, as calibrate --always-fit-ratio");
   command.add_option("--ratio-evidence", args->ratio_evidence,
                      "on: the images' r combined with EXIF by their precisions (as calibrate); off: the images alone")
       ->capture_default_str()
       ->check(CLI::IsMember({"on", "off"}));
-  command.add_option("--ratio-prior", args->ratio_prior, "Sigma of the EXIF prior on log r (0: r from the images alone)")
+  command.add_option("--ratio-prior", args->ratio_prior,
+                     "Sigma of the EXIF prior on log r (0: r from the images alone)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   command.add_option("--censored-weight", args->censored_weight,

@@ -16,13 +16,14 @@ KernelPieces keepMassivePieces(cv::Mat& K) {
     for (int x = 0; x < K.cols; ++x) mass[static_cast<std::size_t>(labels.at<int>(y, x))] += K.at<double>(y, x);
   double largest = 0;
   for (int l = 1; l < count; ++l) largest = std::max(largest, mass[static_cast<std::size_t>(l)]);
+  const double least_kept = 0.1 * largest;
   for (int y = 0; y < K.rows; ++y)
     for (int x = 0; x < K.cols; ++x)
-      if (mass[static_cast<std::size_t>(labels.at<int>(y, x))] < 0.1 * largest) K.at<double>(y, x) = 0;
+      if (mass[static_cast<std::size_t>(labels.at<int>(y, x))] < least_kept) K.at<double>(y, x) = 0;
   KernelPieces pieces;
   double kept = 0;
-  for (int l = 1; l < count; ++l)
-    if (mass[static_cast<std::size_t>(l)] >= 0.1 * largest) {
+  for (int l = 1; l < count; ++l)  // label 0 is the background
+    if (mass[static_cast<std::size_t>(l)] >= least_kept) {
       ++pieces.count;
       kept += mass[static_cast<std::size_t>(l)];
     }

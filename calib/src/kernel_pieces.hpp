@@ -30,7 +30,7 @@ double borderAreaShare(int n);
 // whose border holds no more than an even spread would put there "fell apart" (the pair does not resolve the blur);
 // otherwise it "reaches its size limit" (a larger window helps). The benches' accurate kernels keep 52 % or more of
 // their mass in one piece; the large-blur run's scattered 79 px estimate 11 % in 30 pieces
-// (docs/RESULTS.md#kernel-growth).
+// (docs/RESULTS.md#kernel-fell-apart).
 std::string kernelSizeLimitMessage(const cv::Mat& K, const KernelPieces& pieces);
 
 }  // namespace crfcal::detail
