@@ -1,7 +1,7 @@
 // The pieces of an estimated blur kernel: the connected parts of its support after pruning, and what they say when
 // the estimate reaches its window's border. A motion blur is one connected trajectory; an estimate that reaches the
 // border either is a blur cut off by the window (its mass piled on the border) or has fallen apart into specks
-// (the sharp shot's noise over a kernel of thousands of unknowns), and the user needs to know which (kernel_pieces.cpp).
+// (the sharp shot's noise over a kernel of thousands of unknowns), and the user needs to know which.
 #pragma once
 
 #include <string>
